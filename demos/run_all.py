@@ -1,0 +1,42 @@
+"""Run every demo at its smallest size, serially and under ``mpiexec -n 2``.
+
+Used by ``make test`` (and so by CI). Each demo writes into a temporary folder.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+MPIEXEC = Path(sys.executable).parent / "mpiexec"
+
+# demo script -> arguments for its smallest size
+DEMOS: dict[str, list[str]] = {
+    "example1.py": ["--h", "0.125"],
+}
+
+
+def main() -> int:
+    failures = []
+    for script, extra in DEMOS.items():
+        for nproc in (1, 2):
+            with tempfile.TemporaryDirectory() as tmp:
+                cmd = [sys.executable, str(HERE / script), *extra, "--out", f"{tmp}/out"]
+                if nproc > 1:
+                    cmd = [str(MPIEXEC), "-n", str(nproc), *cmd]
+                print(f"$ {' '.join(cmd)}", flush=True)
+                proc = subprocess.run(cmd, check=False)
+                if proc.returncode != 0:
+                    failures.append(f"{script} (np={nproc})")
+    if failures:
+        print("demo failures: " + ", ".join(failures))
+        return 1
+    print(f"demos: {2 * len(DEMOS)} passed, 0 failed")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

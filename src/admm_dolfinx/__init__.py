@@ -1,0 +1,44 @@
+"""admm_dolfinx: frictionless unilateral contact with a rigid obstacle, solved by ADMM.
+
+The package solves the Signorini problem
+
+    minimise ½ uᵀA u − fᵀu   subject to   N u ≤ g
+
+for a linear elastic body (P1 vector Lagrange, DOLFINx 0.11) pressed against an
+analytic rigid obstacle, with the alternating direction method of multipliers of
+J. Koko (2019) and its automatic penalty parameter r* = 1/sqrt(λ_min λ_max).
+
+Typical use inside a FEniCS workflow::
+
+    problem = admm_dolfinx.ContactProblem(a, L, bcs, facet_tags, contact_marker,
+                                          admm_dolfinx.Plane(point, normal))
+    result = admm_dolfinx.ADMMSolver(problem, penalty=1e4).solve()
+    result.u, result.pressure
+"""
+
+from __future__ import annotations
+
+from admm_dolfinx import _bootstrap  # noqa: F401  (must precede dolfinx/petsc4py)
+from admm_dolfinx.admm import ADMMConvergenceError, ADMMResult, ADMMSolver
+from admm_dolfinx.kkt import KKTResiduals
+from admm_dolfinx.obstacles import Ball, Obstacle, Plane
+from admm_dolfinx.problem import ContactProblem
+
+try:
+    from importlib.metadata import version as _version
+
+    __version__ = _version("admm-dolfinx")
+except Exception:  # pragma: no cover - running from a source tree without install
+    __version__ = "0.0.0+unknown"
+
+__all__ = [
+    "ADMMConvergenceError",
+    "ADMMResult",
+    "ADMMSolver",
+    "Ball",
+    "ContactProblem",
+    "KKTResiduals",
+    "Obstacle",
+    "Plane",
+    "__version__",
+]

@@ -1,0 +1,249 @@
+"""Contact geometry on the tagged facets: nodes, nodal normals, lumped mass, gap.
+
+Everything here is parallel-safe: facet integrals are assembled by DOLFINx and
+summed across process boundaries, so a contact facet that spans two ranks yields the
+same nodal normal and mass on both.
+
+Notation (design.md §1): contact node j has the area-weighted, normalised outward
+normal n_j of the body, the lumped mass M_jj = ∫_Γc φ_j ds, and the gap g_j to the
+obstacle along n_j.  With these, (N u)_j = u_j · n_j.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import ufl
+from dolfinx import fem, mesh
+from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from admm_dolfinx.obstacles import Obstacle
+
+__all__ = ["VERTEX_RULE", "ContactSet", "build_contact_set", "contact_measure"]
+
+#: Vertex quadrature on facets: turns facet mass integrals into the lumped (diagonal)
+#: mass ∫ φ_j ds and evaluates nodal fields exactly at the nodes.
+VERTEX_RULE = {"quadrature_rule": "vertex", "quadrature_degree": 1}
+
+#: A node whose normal has less than this much length left after removing the
+#: Dirichlet-fixed components has its normal displacement prescribed: it is not a
+#: contact node.
+_FIXED_NORMAL_TOL = 1e-8
+
+
+def contact_measure(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int) -> ufl.Measure:
+    """Return the vertex-rule exterior facet measure restricted to ``marker``.
+
+    Args:
+        msh: The body's mesh.
+        facet_tags: Facet tags of the body's mesh.
+        marker: Value that marks the candidate contact facets Γ_C.
+
+    Returns:
+        ``ds(marker)`` with the vertex quadrature rule.
+    """
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags, metadata=VERTEX_RULE)
+    return ds(marker)
+
+
+
+@dataclass
+class ContactSet:
+    """The contact nodes owned by this rank and their geometry.
+
+    Attributes:
+        Q: Scalar P1 space on the body's mesh (the space of p, λ, g and M), collapsed
+            from the displacement space so that its dof i is node i of V.
+        normal: Nodal normal field n_h in the displacement space; zero away from the
+            contact nodes. It is what the UFL form of NᵀMN uses.
+        dofs: Local indices of the owned Q dofs that are contact nodes, shape (m_loc,).
+        nodes: The matching local node (block) indices of the displacement space.
+        normals: Unit outward normals n_j, shape (m_loc, gdim).
+        free_normals: n_j with its Dirichlet-fixed components zeroed: the rows of Nᵀ
+            that act on free dofs.
+        mass: Lumped contact mass M_jj, shape (m_loc,).
+        gap: Normalised gap g_j, shape (m_loc,); +inf where the node can never touch.
+        coordinates: Node coordinates, shape (m_loc, gdim).
+        num_global: Total number m of contact nodes over all ranks.
+        num_excluded: Nodes on Γ_C (all ranks) whose normal displacement is fixed by a
+            Dirichlet condition and which are therefore not contact nodes.
+    """
+
+    Q: fem.FunctionSpace
+    normal: fem.Function
+    dofs: npt.NDArray[np.int32]
+    nodes: npt.NDArray[np.int32]
+    normals: npt.NDArray[np.float64]
+    free_normals: npt.NDArray[np.float64]
+    mass: npt.NDArray[np.float64]
+    gap: npt.NDArray[np.float64]
+    coordinates: npt.NDArray[np.float64]
+    num_global: int
+    num_excluded: int
+
+
+def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int) -> int:
+    """Check that ``marker`` tags at least one exterior facet; collective.
+
+    Args:
+        msh: The body's mesh.
+        facet_tags: Its facet tags.
+        marker: The contact marker.
+
+    Returns:
+        The global number of tagged facets.
+
+    Raises:
+        ValueError: On every rank alike, if no rank has a facet with ``marker`` or if a
+            tagged facet is an interior facet.
+    """
+    tdim = msh.topology.dim
+    local = facet_tags.find(marker)
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    exterior = mesh.exterior_facet_indices(msh.topology)
+    n_interior = int(np.count_nonzero(~np.isin(local, exterior)))
+    counts = msh.comm.allreduce(np.array([local.size, n_interior]), op=MPI.SUM)
+    if counts[0] == 0:
+        present = np.unique(facet_tags.values)
+        all_values = sorted(set(np.concatenate(msh.comm.allgather(present)).tolist()))
+        raise ValueError(
+            f"No facets are tagged with contact marker {marker} on any process "
+            f"(the facet tags hold the values {all_values}). Pass the marker of the "
+            "candidate contact boundary Γ_C."
+        )
+    if counts[1] > 0:
+        raise ValueError(
+            f"{counts[1]} facet(s) tagged with contact marker {marker} are interior "
+            "facets. Contact facets must lie on the boundary of the body."
+        )
+    return int(counts[0])
+
+
+def _dirichlet_fixed(V: fem.FunctionSpace, bcs: Sequence[fem.DirichletBC]) -> npt.NDArray:
+    """Return a (num_local_nodes, bs) boolean array: which dof components are fixed."""
+    bs = V.dofmap.index_map_bs
+    n_local = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
+    fixed = np.zeros(n_local * bs, dtype=bool)
+    for bc in bcs:
+        dofs, _ = bc.dof_indices()
+        fixed[dofs] = True
+    return fixed.reshape(-1, bs)
+
+
+def _assemble_over_contact(form: ufl.Form, V: fem.FunctionSpace) -> npt.NDArray[np.float64]:
+    """Assemble a linear form, sum across ranks and return owned+ghost values."""
+    vec = fem_petsc.assemble_vector(fem.form(form))
+    vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+    with vec.localForm() as loc:
+        values = loc.array.copy()
+    vec.destroy()
+    return values
+
+
+def build_contact_set(
+    V: fem.FunctionSpace,
+    facet_tags: mesh.MeshTags,
+    marker: int,
+    bcs: Sequence[fem.DirichletBC],
+    obstacle: Obstacle,
+) -> ContactSet:
+    """Find the contact nodes and compute their normals, mass and gap; collective.
+
+    Args:
+        V: P1 vector displacement space.
+        facet_tags: Facet tags of V's mesh.
+        marker: Contact marker.
+        bcs: Dirichlet conditions on V; a node whose normal displacement they fix is
+            not a contact node.
+        obstacle: The rigid obstacle.
+
+    Returns:
+        The contact set.
+
+    Raises:
+        ValueError: If every node of Γ_C has its normal displacement fixed, or the gap
+            is NaN or -inf at a contact node.
+    """
+    msh = V.mesh
+    gdim = msh.geometry.dim
+    bs = V.dofmap.index_map_bs
+    ds_c = contact_measure(msh, facet_tags, marker)
+
+    # Area-weighted nodal normal: vertex rule gives Σ_F |F|/n_v · n_F at each node.
+    v = ufl.TestFunction(V)
+    raw = _assemble_over_contact(ufl.inner(ufl.FacetNormal(msh), v) * ds_c, V).reshape(-1, bs)
+    length = np.linalg.norm(raw, axis=1)
+    on_contact = length > 0.0
+    normals_all = np.zeros_like(raw)
+    normals_all[on_contact] = raw[on_contact] / length[on_contact, None]
+
+    fixed = _dirichlet_fixed(V, bcs)
+    free_all = np.where(fixed, 0.0, normals_all)
+    active = on_contact & (np.linalg.norm(free_all, axis=1) > _FIXED_NORMAL_TOL)
+
+    normal = fem.Function(V, name="contact_normal")
+    normal.x.array[:] = np.where(active[:, None], normals_all, 0.0).reshape(-1)
+
+    Q, q_to_v = V.sub(0).collapse()
+    q_to_node = np.asarray(q_to_v).reshape(-1) // bs
+    w = ufl.TestFunction(Q)
+    mass_all = _assemble_over_contact(w * ds_c, Q)
+
+    n_owned_q = Q.dofmap.index_map.size_local
+    n_owned_nodes = V.dofmap.index_map.size_local
+    owned_nodes = q_to_node[:n_owned_q]
+    if np.any(owned_nodes >= n_owned_nodes):  # pragma: no cover - DOLFINx invariant
+        raise RuntimeError("internal: collapsed scalar space does not share V's ownership")
+    dofs = np.flatnonzero(active[owned_nodes] & (mass_all[:n_owned_q] > 0.0)).astype(np.int32)
+    nodes = owned_nodes[dofs].astype(np.int32)
+
+    coordinates = Q.tabulate_dof_coordinates()[dofs, :gdim]
+    normals = normals_all[nodes, :gdim]
+    gap = np.asarray(obstacle.gap(coordinates, normals), dtype=np.float64).reshape(-1)
+    if gap.shape != (dofs.size,):
+        raise ValueError(
+            f"{type(obstacle).__name__}.gap returned shape {gap.shape}; expected "
+            f"({dofs.size},), one value per contact node."
+        )
+
+    comm = msh.comm
+    n_owned_on_contact = int(np.count_nonzero(on_contact[:n_owned_nodes]))
+    n_global, n_on_contact = comm.allreduce(np.array([dofs.size, n_owned_on_contact]), op=MPI.SUM)
+    if n_global == 0:
+        raise ValueError(
+            f"All {n_on_contact} nodes of the contact boundary (marker {marker}) have their "
+            "normal displacement fixed by the Dirichlet conditions, so nothing can come "
+            "into contact. Remove the Dirichlet condition from the contact boundary or "
+            "choose another contact marker."
+        )
+    bad = ~(np.isfinite(gap) | (gap == np.inf))
+    bad_points = comm.gather(coordinates[bad][:5], root=0)
+    n_bad = comm.allreduce(int(np.count_nonzero(bad)), op=MPI.SUM)
+    if n_bad > 0:
+        examples = np.concatenate(bad_points)[:5] if comm.rank == 0 else None
+        examples = comm.bcast(examples, root=0)
+        raise ValueError(
+            f"The gap to {obstacle!r} is NaN or -inf at {n_bad} contact node(s), e.g. at "
+            f"{examples.tolist()}. The obstacle's gap() must return a finite value, or "
+            "+inf where the node can never touch the obstacle."
+        )
+
+    return ContactSet(
+        Q=Q,
+        normal=normal,
+        dofs=dofs,
+        nodes=nodes,
+        normals=normals,
+        free_normals=free_all[nodes, :gdim],
+        mass=mass_all[dofs].copy(),
+        gap=gap,
+        coordinates=coordinates,
+        num_global=int(n_global),
+        num_excluded=int(n_on_contact - n_global),
+    )

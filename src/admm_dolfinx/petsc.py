@@ -1,0 +1,122 @@
+"""PETSc helpers: prefixed options, factorised solvers, object lifetimes.
+
+Every solver object of this package gets its own options prefix; options passed in
+Python are pushed under that prefix, read once with ``setFromOptions`` and removed
+again, so nothing leaks into the global options database (the pattern of
+``dolfinx.fem.petsc.LinearProblem``).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping
+from typing import Any
+
+from petsc4py import PETSc
+
+__all__ = [
+    "DEFAULT_FACTOR_OPTIONS",
+    "apply_options",
+    "create_factor_solver",
+    "factorization_count",
+    "unique_prefix",
+]
+
+#: Direct solve of a symmetric positive definite system: MUMPS Cholesky, one
+#: factorisation reused by every ``KSPSolve``.
+DEFAULT_FACTOR_OPTIONS: dict[str, Any] = {
+    "ksp_type": "preonly",
+    "pc_type": "cholesky",
+    "pc_factor_mat_solver_type": "mumps",
+}
+
+_counter = itertools.count()
+
+
+def unique_prefix(stem: str) -> str:
+    """Return a fresh options prefix ``f"{stem}{k}_"``, unique in this process.
+
+    Args:
+        stem: Leading part, e.g. ``"admm_"``.
+
+    Returns:
+        The prefix.
+    """
+    return f"{stem}{next(_counter)}_"
+
+
+def apply_options(obj: Any, prefix: str, options: Mapping[str, Any] | None) -> None:
+    """Set ``obj``'s prefix, push ``options`` under it, call ``setFromOptions``, clean up.
+
+    Args:
+        obj: A PETSc object with ``setOptionsPrefix`` and ``setFromOptions``.
+        prefix: Options prefix for ``obj``.
+        options: Option names without prefix (``{"pc_type": "lu"}``) and values;
+            ``None`` values set a flag.
+    """
+    opts = PETSc.Options()
+    obj.setOptionsPrefix(prefix)
+    options = dict(options or {})
+    for key, value in options.items():
+        opts[f"{prefix}{key}"] = value
+    obj.setFromOptions()
+    for key in options:
+        del opts[f"{prefix}{key}"]
+
+
+def create_factor_solver(
+    A: PETSc.Mat, prefix: str, options: Mapping[str, Any] | None = None
+) -> PETSc.KSP:
+    """Create a KSP that factorises ``A`` (MUMPS Cholesky unless overridden).
+
+    The factorisation happens at the first ``setUp``/``solve`` and is reused until the
+    values of ``A`` change.
+
+    Args:
+        A: Symmetric positive definite operator.
+        prefix: Options prefix of the KSP.
+        options: Options overriding :data:`DEFAULT_FACTOR_OPTIONS`.
+
+    Returns:
+        The KSP (the caller owns it and must ``destroy`` it).
+    """
+    ksp = PETSc.KSP().create(A.getComm())
+    ksp.setOperators(A)
+    merged = {**DEFAULT_FACTOR_OPTIONS, **dict(options or {})}
+    apply_options(ksp, prefix, merged)
+    return ksp
+
+
+def factorization_count() -> int:
+    """Numeric factorisations recorded by PETSc's log in this process (LU + Cholesky).
+
+    Requires ``PETSc.Log.begin()`` to have been called; counts are cumulative.
+
+    Returns:
+        The number of ``MatLUFactorNum`` and ``MatCholFctrNum`` events so far.
+    """
+    return sum(
+        int(PETSc.Log.Event(name).getPerfInfo()["count"])
+        for name in ("MatLUFactorNum", "MatCholFctrNum")
+    )
+
+
+def check_solve(ksp: PETSc.KSP, what: str) -> None:
+    """Raise if the last ``ksp.solve`` did not converge.
+
+    Args:
+        ksp: The solver.
+        what: Short description of the system for the error message.
+
+    Raises:
+        RuntimeError: With PETSc's reason, if the solve diverged.
+    """
+    reason = ksp.getConvergedReason()
+    if reason < 0:
+        pc_reason = ksp.getPC().getFailedReason()
+        raise RuntimeError(
+            f"The linear solve of {what} failed (KSP reason {reason}, PC reason {pc_reason}). "
+            "If the factorisation hit a zero pivot, the operator is singular: the body "
+            "has a rigid motion that neither the Dirichlet conditions nor the contact "
+            "normals restrain."
+        )

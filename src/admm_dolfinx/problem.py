@@ -1,0 +1,321 @@
+"""The discrete contact problem: operators assembled from the user's UFL forms.
+
+:class:`ContactProblem` turns
+
+* the elasticity bilinear form ``a`` and load ``L`` (UFL, P1 vector space),
+* Dirichlet conditions ``bcs`` (the DOLFINx way: symmetric elimination),
+* the facet tags with the candidate contact boundary Γ_C, and
+* an analytic rigid :class:`~admm_dolfinx.obstacles.Obstacle`
+
+into the data of the quadratic programme (design.md §1)
+
+    minimise ½ uᵀA u − fᵀu   subject to   N u ≤ g,
+
+namely the stiffness ``A``, the normal mass ``K = NᵀMN`` (a UFL form with the vertex
+rule and the nodal normal field), the lifted load, the lumped mass ``M`` and the gap
+``g``.  ``N`` itself is node-local (``(N u)_j = u_j · n_j``) and is applied directly to
+owned nodal values; it never needs a matrix.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+import ufl
+from dolfinx import fem, mesh
+from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from admm_dolfinx.contact import (
+    ContactSet,
+    build_contact_set,
+    check_contact_facets,
+    contact_measure,
+)
+from admm_dolfinx.obstacles import Obstacle
+
+__all__ = ["ContactProblem"]
+
+
+def _cpp(obj):
+    """The C++ object behind a DOLFINx Python wrapper (or the object itself)."""
+    return getattr(obj, "_cpp_object", obj)
+
+
+def _argument_space(form: ufl.Form, number: int) -> fem.FunctionSpace:
+    for arg in form.arguments():
+        if arg.number() == number:
+            return arg.ufl_function_space()
+    raise ValueError("internal: argument not found")  # pragma: no cover
+
+
+def _check_forms(a: ufl.Form, L: ufl.Form) -> fem.FunctionSpace:
+    if not isinstance(a, ufl.Form) or len(a.arguments()) != 2:
+        raise TypeError(
+            "`a` must be a bilinear UFL form (e.g. inner(sigma(u), eps(v)) * dx), "
+            f"got {type(a).__name__}."
+        )
+    if not isinstance(L, ufl.Form) or len(L.arguments()) != 1:
+        raise TypeError(
+            "`L` must be a linear UFL form (e.g. dot(t, v) * ds(1)); for a problem without "
+            "loads use `ufl.dot(ufl.as_vector((0,)*gdim), v) * ufl.dx`. "
+            f"Got {type(L).__name__}."
+        )
+    V = _argument_space(a, 0)
+    if _argument_space(a, 1) != V or _argument_space(L, 0) != V:
+        raise ValueError("`a` and `L` must use one and the same displacement space.")
+    msh = V.mesh
+    gdim = msh.geometry.dim
+    element = V.ufl_element()
+    shape = tuple(element.reference_value_shape)
+    if shape != (gdim,):
+        raise ValueError(
+            f"The displacement space must be a vector space with {gdim} components "
+            f"(value shape {(gdim,)}), got value shape {shape}. Create it with "
+            f'fem.functionspace(mesh, ("Lagrange", 1, ({gdim},))).'
+        )
+    basix_element = getattr(element, "basix_element", None)
+    family = getattr(basix_element, "family", None)
+    degree = element.embedded_superdegree
+    if degree != 1 or str(family) != "ElementFamily.P" or getattr(
+        basix_element, "discontinuous", False
+    ):
+        raise ValueError(
+            f"The displacement space must be continuous P1 Lagrange, got {element}. The "
+            "lumped contact mass and nodal normals of this method are defined for P1 "
+            f'only: use fem.functionspace(mesh, ("Lagrange", 1, ({gdim},))).'
+        )
+    return V
+
+
+class ContactProblem:
+    """Frictionless contact of a linear elastic body with a rigid obstacle.
+
+    Args:
+        a: Bilinear UFL form of the elasticity operator on a P1 vector space V.
+        L: Linear UFL form of the loads on V.
+        bcs: Dirichlet conditions on V (or its sub-spaces); may be empty.
+        facet_tags: Facet tags of V's mesh.
+        contact_marker: Tag value of the candidate contact facets Γ_C.
+        obstacle: The rigid obstacle.
+        form_compiler_options: Passed to :func:`dolfinx.fem.form`.
+        jit_options: Passed to :func:`dolfinx.fem.form`.
+
+    Raises:
+        TypeError: If the forms are not UFL forms of the right arity.
+        ValueError: For a space that is not P1 vector Lagrange, facet tags of another
+            mesh, a marker without facets, Dirichlet conditions on all of Γ_C, or a NaN
+            or -inf gap.
+
+    Attributes:
+        V: Displacement space.
+        A: Stiffness with Dirichlet rows/columns eliminated (unit diagonal), PETSc Mat.
+        K: Normal mass NᵀMN with Dirichlet rows/columns eliminated (zero diagonal).
+        contact: The :class:`~admm_dolfinx.contact.ContactSet`.
+    """
+
+    def __init__(
+        self,
+        a: ufl.Form,
+        L: ufl.Form,
+        bcs: Sequence[fem.DirichletBC],
+        facet_tags: mesh.MeshTags,
+        contact_marker: int,
+        obstacle: Obstacle,
+        *,
+        form_compiler_options: dict | None = None,
+        jit_options: dict | None = None,
+    ):
+        t_start = time.perf_counter()
+        V = _check_forms(a, L)
+        msh = V.mesh
+        if not isinstance(obstacle, Obstacle):
+            raise TypeError(
+                f"`obstacle` must be an admm_dolfinx.Obstacle (Plane, Ball or a subclass), "
+                f"got {type(obstacle).__name__}."
+            )
+        obstacle.check_dimension(msh.geometry.dim)
+        if not isinstance(facet_tags, mesh.MeshTags):
+            raise TypeError(f"`facet_tags` must be dolfinx MeshTags, got {type(facet_tags)}.")
+        if _cpp(facet_tags.topology) is not _cpp(msh.topology):
+            raise ValueError(
+                "`facet_tags` belong to a different mesh than the forms. Create them with "
+                "dolfinx.mesh.meshtags(mesh, mesh.topology.dim - 1, ...) on the mesh of the "
+                "displacement space."
+            )
+        if facet_tags.dim != msh.topology.dim - 1:
+            raise ValueError(
+                f"`facet_tags` tag entities of dimension {facet_tags.dim}; facet tags of "
+                f"dimension {msh.topology.dim - 1} are needed."
+            )
+        if isinstance(contact_marker, bool) or not isinstance(
+            contact_marker, int | np.integer
+        ):
+            raise TypeError(f"`contact_marker` must be an int, got {contact_marker!r}.")
+        bcs = list(bcs or [])
+        for bc in bcs:
+            if not isinstance(bc, fem.DirichletBC):
+                raise TypeError(f"`bcs` must hold dolfinx DirichletBC objects, got {type(bc)}.")
+            if _cpp(bc.function_space.mesh.topology) is not _cpp(msh.topology):
+                raise ValueError("A Dirichlet condition lives on a different mesh than the forms.")
+
+        check_contact_facets(msh, facet_tags, int(contact_marker))
+
+        self.V = V
+        self.mesh = msh
+        self.comm: MPI.Comm = msh.comm
+        self.bcs = bcs
+        self.obstacle = obstacle
+        self.facet_tags = facet_tags
+        self.contact_marker = int(contact_marker)
+        self.contact: ContactSet = build_contact_set(
+            V, facet_tags, self.contact_marker, bcs, obstacle
+        )
+
+        opts = {"form_compiler_options": form_compiler_options, "jit_options": jit_options}
+        u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+        n_h = self.contact.normal
+        ds_c = contact_measure(msh, facet_tags, self.contact_marker)
+        self._a = fem.form(a, **opts)
+        self._k = fem.form(ufl.inner(ufl.dot(u, n_h), ufl.dot(v, n_h)) * ds_c, **opts)
+        self._L = fem.form(L, **opts)
+
+        self.A = fem_petsc.assemble_matrix(self._a, bcs=bcs)
+        self.A.assemble()
+        self.K = fem_petsc.assemble_matrix(self._k, bcs=bcs, diag=0.0)
+        self.K.assemble()
+
+        # Load with the Dirichlet lifting of A and, separately, of K, so that the right
+        # hand side of (A + rK) u = ... is load_A + r lift_K for any r.
+        self._load = fem_petsc.assemble_vector(self._L)
+        fem_petsc.apply_lifting(self._load, [self._a], bcs=[bcs])
+        self._load.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        fem_petsc.set_bc(self._load, bcs)
+        self._lift_k = fem_petsc.create_vector(V)
+        self._lift_k.set(0.0)
+        fem_petsc.apply_lifting(self._lift_k, [self._k], bcs=[bcs])
+        self._lift_k.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        fem_petsc.set_bc(self._lift_k, bcs, alpha=0.0)
+        #: Wall-clock seconds spent building the operators (``assembly``).
+        self.timings = {"assembly": time.perf_counter() - t_start}
+
+    # ------------------------------------------------------------------ algebra
+    @property
+    def gdim(self) -> int:
+        """Geometric dimension of the mesh."""
+        return self.mesh.geometry.dim
+
+    @property
+    def num_contact_nodes(self) -> int:
+        """Global number m of contact nodes."""
+        return self.contact.num_global
+
+    def create_vector(self) -> PETSc.Vec:
+        """Return a new PETSc vector in the layout of V (caller destroys it)."""
+        return fem_petsc.create_vector(self.V)
+
+    def assemble_rhs(self, r: float, b: PETSc.Vec) -> None:
+        """Set ``b`` to the lifted load for ``A + r K``; Dirichlet rows hold u_D.
+
+        Args:
+            r: Penalty parameter.
+            b: Output vector in V's layout.
+        """
+        self._load.copy(b)
+        b.axpy(r, self._lift_k)
+
+    def apply_normal(self, u: PETSc.Vec) -> npt.NDArray[np.float64]:
+        """Return ``N u`` at the owned contact nodes: ``(N u)_j = u_j · n_j``.
+
+        Args:
+            u: Displacement vector in V's layout (Dirichlet values included).
+
+        Returns:
+            Array of shape (m_loc,).
+        """
+        c = self.contact
+        values = u.array_r.reshape(-1, self.V.dofmap.index_map_bs)[c.nodes, : self.gdim]
+        return np.einsum("ij,ij->i", values, c.normals)
+
+    def add_normal_force(self, b: PETSc.Vec, q: npt.NDArray[np.float64]) -> None:
+        """Add ``Nᵀ M q`` to ``b`` on the free dofs (Dirichlet rows untouched).
+
+        Args:
+            b: Vector in V's layout.
+            q: Nodal values at the owned contact nodes, shape (m_loc,).
+        """
+        c = self.contact
+        bs = self.V.dofmap.index_map_bs
+        with b as arr:  # context form: PETSc sees the write (cached norms invalidated)
+            arr.reshape(-1, bs)[c.nodes, : self.gdim] += c.free_normals * (c.mass * q)[:, None]
+
+    def multiplier_from_residual(self, residual: PETSc.Vec) -> npt.NDArray[np.float64]:
+        """Recover λ from an equilibrium residual ``R = f − A u`` that equals ``NᵀMλ``.
+
+        At contact node j, R_j = M_jj λ_j ñ_j with ñ_j the free part of n_j, hence
+        λ_j = (R_j · ñ_j) / (M_jj |ñ_j|²). Used by solvers that do not carry λ.
+
+        Args:
+            residual: ``f − A u`` in V's layout.
+
+        Returns:
+            λ at the owned contact nodes, shape (m_loc,).
+        """
+        c = self.contact
+        bs = self.V.dofmap.index_map_bs
+        values = residual.array_r.reshape(-1, bs)[c.nodes, : self.gdim]
+        weight = np.einsum("ij,ij->i", c.free_normals, c.free_normals)
+        return np.einsum("ij,ij->i", values, c.free_normals) / (c.mass * weight)
+
+    def pressure_function(
+        self, values: npt.NDArray[np.float64], name: str = "contact_pressure"
+    ) -> fem.Function:
+        """Return a P1 scalar Function equal to ``values`` at contact nodes, zero elsewhere.
+
+        Args:
+            values: Nodal values at the owned contact nodes, shape (m_loc,).
+            name: Name of the Function.
+
+        Returns:
+            The Function (ghosts updated).
+        """
+        f = fem.Function(self.contact.Q, name=name)
+        f.x.array[:] = 0.0
+        f.x.array[self.contact.dofs] = values
+        f.x.scatter_forward()
+        return f
+
+    def global_norm(self, x: npt.NDArray[np.float64], ord: float = 2) -> float:
+        """Global 2- or ∞-norm of a distributed array of nodal values; collective."""
+        if ord == np.inf:
+            local = float(np.max(np.abs(x))) if x.size else 0.0
+            return float(self.comm.allreduce(local, op=MPI.MAX))
+        return float(np.sqrt(self.comm.allreduce(float(x @ x), op=MPI.SUM)))
+
+    def load_vector(self) -> PETSc.Vec:
+        """The lifted load f (Dirichlet rows hold u_D); owned by the problem, do not modify."""
+        return self._load
+
+    def destroy(self) -> None:
+        """Free the PETSc objects (matrices and vectors) of the problem."""
+        for name in ("A", "K", "_load", "_lift_k"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.destroy()
+                setattr(self, name, None)
+
+    def __del__(self):
+        try:
+            self.destroy()
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
+
+    def __repr__(self) -> str:
+        return (
+            f"ContactProblem({self.gdim}D, {self.V.dofmap.index_map.size_global} nodes, "
+            f"m = {self.num_contact_nodes} contact nodes, obstacle={self.obstacle!r})"
+        )

@@ -1,0 +1,78 @@
+"""ADMM against an independent solver (SNES VI active-set Newton) and its own KKT test."""
+
+import numpy as np
+import pytest
+from admm_dolfinx import ADMMConvergenceError, ADMMSolver
+from admm_dolfinx.baselines import solve_snes_vi
+from admm_dolfinx.petsc import factorization_count
+from admm_dolfinx.scenes import example1
+from conftest import rel_diff
+from mpi4py import MPI
+
+
+def _global(problem, local):
+    return np.concatenate(problem.comm.allgather(np.asarray(local)))
+
+
+@pytest.mark.parametrize("h", [1 / 8, 1 / 16, 1 / 32])
+def test_example1_matches_snes_vi(h):
+    problem = example1(h=h).problem()
+    with ADMMSolver(problem, penalty=3000.0, rtol=1e-11, max_iter=2000) as solver:
+        result = solver.solve()
+    ref = solve_snes_vi(problem)
+    assert result.converged
+    assert rel_diff(result.u.x.array, ref.u.x.array) <= 1e-6
+    assert rel_diff(_global(problem, result.multiplier), _global(problem, ref.multiplier)) <= 1e-6
+    assert ref.kkt.max() <= 1e-10
+    assert result.kkt.max() <= 1e-6
+    # The solution really is in contact, with a non-trivial active set.
+    assert 0 < result.num_active < problem.num_contact_nodes
+    assert np.all(result.multiplier >= 0.0)
+    assert result.pressure.x.array.min() >= 0.0
+
+
+def test_one_factorisation_per_penalty():
+    problem = example1(h=1 / 16).problem()
+    before = factorization_count()
+    solver = ADMMSolver(problem, penalty=3000.0, rtol=1e-8)
+    result = solver.solve()
+    assert result.iterations > 10
+    assert factorization_count() - before == 1  # from PETSc's log, not from our code
+    solver.solve()  # a second solve at the same r reuses the factorisation
+    assert factorization_count() - before == 1
+    solver.set_penalty(2000.0)
+    solver.solve()
+    assert factorization_count() - before == 2
+    solver.destroy()
+
+
+def test_unconverged_solve_raises_with_partial_result():
+    problem = example1(h=1 / 8).problem()
+    solver = ADMMSolver(problem, penalty=3000.0, rtol=1e-8, max_iter=3)
+    with pytest.raises(ADMMConvergenceError, match="did not converge in 3 iterations") as info:
+        solver.solve()
+    assert info.value.result.converged is False
+    assert info.value.result.iterations == 3
+    solver.destroy()
+
+
+def test_scale_invariance_in_E():
+    """E = 1 and E = 1e6 (with r and the load scaled alike) need the same iterations."""
+    its = []
+    for E in (1.0, 1e6):
+        problem = example1(h=1 / 8, mesher="builtin", E=E, traction=10.0 * E / 2000.0).problem()
+        with ADMMSolver(problem, penalty=1.5 * E, rtol=1e-8) as solver:
+            its.append(solver.solve().iterations)
+    assert its[0] == its[1]
+
+
+def test_history_and_timings_are_recorded():
+    problem = example1(h=1 / 8).problem()
+    with ADMMSolver(problem, penalty=3000.0) as solver:
+        result = solver.solve()
+    assert len(result.history["du"]) == result.iterations
+    assert result.history["du"][-1] <= 1e-6 and result.history["dp"][-1] <= 1e-6
+    for key in ("assembly", "factorization", "iterations", "total"):
+        assert result.timings[key] >= 0.0
+    assert "converged" in result.summary()
+    assert MPI.COMM_WORLD.allreduce(result.iterations, op=MPI.MAX) == result.iterations

@@ -1,0 +1,156 @@
+"""Bad input gets a clear error that names the problem and the fix (collectively under MPI)."""
+
+import math
+
+import numpy as np
+import pytest
+import ufl
+from admm_dolfinx import ADMMSolver, Ball, ContactProblem, Obstacle, Plane
+from admm_dolfinx.material import LinearElastic
+from admm_dolfinx.scenes import example1
+from dolfinx import fem, mesh
+from mpi4py import MPI
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return example1(h=1 / 8, mesher="builtin")
+
+
+def _problem(scene, **changes):
+    args = {
+        "a": scene.a,
+        "L": scene.L,
+        "bcs": scene.bcs,
+        "facet_tags": scene.facet_tags,
+        "contact_marker": scene.contact_marker,
+        "obstacle": scene.obstacle,
+    }
+    args.update(changes)
+    return ContactProblem(**args)
+
+
+def test_scalar_space(scene):
+    Q = fem.functionspace(scene.mesh, ("Lagrange", 1))
+    p, q = ufl.TrialFunction(Q), ufl.TestFunction(Q)
+    with pytest.raises(ValueError, match="vector space with 2 components"):
+        _problem(scene, a=ufl.inner(ufl.grad(p), ufl.grad(q)) * ufl.dx, L=q * ufl.dx)
+
+
+def test_p2_space(scene):
+    V2 = fem.functionspace(scene.mesh, ("Lagrange", 2, (2,)))
+    u, v = ufl.TrialFunction(V2), ufl.TestFunction(V2)
+    with pytest.raises(ValueError, match="P1 Lagrange"):
+        _problem(scene, a=scene.material.bilinear_form(u, v), L=ufl.dot(ufl.as_vector((0.0, -1.0)), v) * ufl.dx, bcs=[])
+
+
+def test_not_a_form(scene):
+    with pytest.raises(TypeError, match="bilinear UFL form"):
+        _problem(scene, a=scene.L)
+
+
+def test_marker_without_facets(scene):
+    with pytest.raises(ValueError, match=r"No facets are tagged with contact marker 99.*\[1, 2, 3, 4\]"):
+        _problem(scene, contact_marker=99)
+
+
+def test_marker_present_on_one_rank_only():
+    """Facets on rank 0 only: valid, and no rank may hang or fail."""
+    comm = MPI.COMM_WORLD
+    msh = mesh.create_rectangle(comm, [[0, 0], [2, 1]], [8, 4])
+    fdim = 1
+    msh.topology.create_connectivity(fdim, 2)
+    bottom = mesh.locate_entities_boundary(msh, fdim, lambda x: np.isclose(x[1], 0.0))
+    left = mesh.locate_entities_boundary(msh, fdim, lambda x: np.isclose(x[0], 0.0))
+    keep = bottom if comm.rank == 0 else bottom[:0]
+    idx = np.unique(np.concatenate([keep, left]))
+    values = np.where(np.isin(idx, keep), 3, 1).astype(np.int32)
+    ft = mesh.meshtags(msh, fdim, idx, values)
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    bc = fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, ft.find(1)), V)
+    f = fem.Constant(msh, np.array([0.0, -1.0]))
+    problem = ContactProblem(LinearElastic(10.0, 0.3).bilinear_form(u, v),
+                             ufl.dot(f, v) * ufl.dx, [bc], ft, 3, Plane((0, -0.01), (0, 1)))
+    assert problem.num_contact_nodes >= 1
+
+
+@pytest.mark.parametrize("r", [0.0, -1.0, math.nan, math.inf])
+def test_bad_penalty(scene, r):
+    problem = _problem(scene)
+    with pytest.raises(ValueError, match="penalty r must be a positive finite number"):
+        ADMMSolver(problem, penalty=r)
+
+
+def test_penalty_of_wrong_type(scene):
+    with pytest.raises(TypeError, match="penalty"):
+        ADMMSolver(_problem(scene), penalty="fast")
+
+
+@pytest.mark.parametrize("max_iter", [0, -5])
+def test_bad_max_iter(scene, max_iter):
+    with pytest.raises(ValueError, match="max_iter must be at least 1"):
+        ADMMSolver(_problem(scene), penalty=1.0, max_iter=max_iter)
+
+
+class _BadGap(Obstacle):
+    def __init__(self, value):
+        self.value = value
+
+    def gap(self, x, n):
+        g = np.full(x.shape[0], 0.01)
+        g[x[:, 0] > 1.5] = self.value
+        return g
+
+
+@pytest.mark.parametrize("value", [math.nan, -math.inf])
+def test_bad_gap(scene, value):
+    with pytest.raises(ValueError, match="NaN or -inf at .* contact node"):
+        _problem(scene, obstacle=_BadGap(value))
+
+
+def test_infinite_gap_means_never_touching(scene):
+    """A disc under the middle of Γ_C: rays from the ends miss it (g = +inf) and that works."""
+    problem = _problem(scene, obstacle=Ball(center=(1.0, -0.31), radius=0.3))
+    gaps = np.concatenate(problem.comm.allgather(problem.contact.gap))
+    assert np.isinf(gaps).any() and np.isfinite(gaps).any()
+    with ADMMSolver(problem, penalty=3000.0, rtol=1e-9) as solver:
+        result = solver.solve()
+    assert result.num_active > 0
+    assert result.kkt.max() < 1e-6
+    lam = problem.contact.gap
+    assert np.all(result.multiplier[np.isinf(lam)] == 0.0)
+
+
+def test_facet_tags_from_another_mesh(scene):
+    other = example1(h=1 / 8, mesher="builtin")
+    with pytest.raises(ValueError, match="different mesh"):
+        _problem(scene, facet_tags=other.facet_tags)
+
+
+def test_dirichlet_on_every_contact_dof(scene):
+    V = scene.V
+    dofs = fem.locate_dofs_topological(V, 1, scene.facet_tags.find(scene.contact_marker))
+    bcs = [*scene.bcs, fem.dirichletbc(np.zeros(2), dofs, V)]
+    with pytest.raises(ValueError, match="normal displacement fixed by the Dirichlet"):
+        _problem(scene, bcs=bcs)
+
+
+def test_dirichlet_on_tangential_component_keeps_contact(scene):
+    """Fixing u_x on Γ_C leaves the normal (y) motion free: still a contact problem."""
+    V = scene.V
+    dofs = fem.locate_dofs_topological(V.sub(0), 1, scene.facet_tags.find(scene.contact_marker))
+    bcs = [*scene.bcs, fem.dirichletbc(0.0, dofs, V.sub(0))]
+    problem = _problem(scene, bcs=bcs)
+    assert problem.num_contact_nodes == 16
+
+
+def test_obstacle_dimension_mismatch(scene):
+    with pytest.raises(ValueError, match="3D but the mesh is 2D"):
+        _problem(scene, obstacle=Plane((0, 0, 0), (0, 0, 1)))
+
+
+@pytest.mark.parametrize("nu", [0.5, 0.6, -1.0])
+def test_bad_poisson_ratio(nu):
+    with pytest.raises(ValueError, match="Poisson ratio"):
+        LinearElastic(1.0, nu)

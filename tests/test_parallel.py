@@ -1,0 +1,41 @@
+"""Serial against parallel: the distributed solve equals a COMM_SELF solve to round-off.
+
+Run under ``mpiexec -n 2`` and ``-n 3`` (see the Makefile); serially there is nothing
+to compare and the tests are skipped.
+"""
+
+import numpy as np
+import pytest
+from admm_dolfinx import ADMMSolver
+from admm_dolfinx.scenes import example1
+from conftest import gather_nodal, rel_diff
+from mpi4py import MPI
+
+parallel_only = pytest.mark.skipif(MPI.COMM_WORLD.size == 1, reason="needs mpiexec -n >= 2")
+
+
+def _solve(comm, h, mesher):
+    problem = example1(comm, h=h, mesher=mesher).problem()
+    with ADMMSolver(problem, penalty=3000.0, rtol=1e-10, max_iter=2000) as solver:
+        result = solver.solve()
+    coords, u = gather_nodal(result.u)
+    c = problem.contact
+    xc = np.concatenate(comm.allgather(c.coordinates))
+    lam = np.concatenate(comm.allgather(result.multiplier))
+    order = np.lexsort(np.round(xc, 10).T[::-1])
+    return result, coords, u, xc[order], lam[order]
+
+
+@parallel_only
+@pytest.mark.parametrize("mesher", ["gmsh", "builtin"])
+def test_parallel_matches_serial(mesher):
+    par, xp, up, cp, lp = _solve(MPI.COMM_WORLD, 1 / 16, mesher)
+    ser, xs, us, cs, ls = _solve(MPI.COMM_SELF, 1 / 16, mesher)
+    # Contact facets span process boundaries: make sure the partition really cuts Γ_C.
+    owners = MPI.COMM_WORLD.allgather(par.multiplier.size > 0)
+    assert sum(owners) >= 2
+    np.testing.assert_allclose(xp, xs, atol=1e-12)
+    np.testing.assert_allclose(cp, cs, atol=1e-12)
+    assert par.iterations == ser.iterations
+    assert rel_diff(up, us) <= 1e-10
+    assert rel_diff(lp, ls) <= 1e-10
