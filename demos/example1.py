@@ -23,23 +23,28 @@ from __future__ import annotations
 import argparse
 import logging
 
+from mpi4py import MPI
+
 import admm_dolfinx
 from admm_dolfinx.output import atomic_directory, write_json, write_xdmf
 from admm_dolfinx.scenes import example1
-from mpi4py import MPI
 
 parser = argparse.ArgumentParser(description=__doc__ or "Example 1 of Koko (2019)")
 parser.add_argument("--h", type=float, default=1 / 32, help="mesh size (default 1/32)")
 parser.add_argument("--mesher", choices=["gmsh", "builtin"], default="gmsh")
 parser.add_argument("--penalty", default="auto", help="penalty r, or 'auto' for r*")
-parser.add_argument("--rtol", type=float, default=1e-6, help="relative-change tolerance")
+parser.add_argument(
+    "--rtol",
+    type=float,
+    default=admm_dolfinx.admm.DEFAULT_RTOL,
+    help="relative-change tolerance (default %(default)g)",
+)
 parser.add_argument("--out", default="out_example1", help="output folder")
 parser.add_argument("--verbose", action="store_true", help="log every ADMM iteration")
 args = parser.parse_args()
 
 comm = MPI.COMM_WORLD
-logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                    format="%(message)s")
+logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
 
 
 def say(*text):
@@ -58,8 +63,10 @@ def say(*text):
 
 scene = example1(comm, h=args.h, mesher=args.mesher)
 problem = scene.problem()
-say(f"Example 1, h = {args.h:.4g}: {scene.num_nodes} nodes, "
-    f"{problem.num_contact_nodes} contact nodes, {comm.size} process(es)")
+say(
+    f"Example 1, h = {args.h:.4g}: {scene.num_nodes} nodes, "
+    f"{problem.num_contact_nodes} contact nodes, {comm.size} process(es)"
+)
 
 # ## The solve
 #
@@ -67,8 +74,9 @@ say(f"Example 1, h = {args.h:.4g}: {scene.num_nodes} nodes, "
 # of A + r NᵀMN, a node-wise projection and a multiplier update.
 
 penalty = args.penalty if args.penalty == "auto" else float(args.penalty)
-with admm_dolfinx.ADMMSolver(problem, penalty=penalty, rtol=args.rtol,
-                             petsc_options_prefix="example1_") as solver:
+with admm_dolfinx.ADMMSolver(
+    problem, penalty=penalty, rtol=args.rtol, petsc_options_prefix="example1_"
+) as solver:
     result = solver.solve()
 say(result.summary())
 
@@ -79,12 +87,22 @@ say(result.summary())
 
 with atomic_directory(comm, args.out) as folder:
     write_xdmf(folder / "solution.xdmf", [result.u, result.pressure])
-    write_json(comm, folder / "summary.json", {
-        "scene": "example1", "h": args.h, "nodes": scene.num_nodes,
-        "contact_nodes": problem.num_contact_nodes, "processes": comm.size,
-        "penalty": result.penalty, "iterations": result.iterations,
-        "active_nodes": result.num_active, "kkt": result.kkt.as_dict(),
-        "timings": result.timings, "max_pressure": result.extra["max_pressure"],
-    })
+    write_json(
+        comm,
+        folder / "summary.json",
+        {
+            "scene": "example1",
+            "h": args.h,
+            "nodes": scene.num_nodes,
+            "contact_nodes": problem.num_contact_nodes,
+            "processes": comm.size,
+            "penalty": result.penalty,
+            "iterations": result.iterations,
+            "active_nodes": result.num_active,
+            "kkt": result.kkt.as_dict(),
+            "timings": result.timings,
+            "max_pressure": result.extra["max_pressure"],
+        },
+    )
 say(f"wrote {args.out}/solution.xdmf and {args.out}/summary.json")
 problem.destroy()

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import gc
 
-import admm_dolfinx  # noqa: F401  (imports dolfinx_solver first when present)
 import numpy as np
 import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
+
+import admm_dolfinx  # noqa: F401  (imports dolfinx_solver first when present)
 
 PETSc.Log.begin()
 

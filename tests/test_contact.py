@@ -3,14 +3,15 @@
 import numpy as np
 import pytest
 import ufl
-from admm_dolfinx import ContactProblem, Plane
-from admm_dolfinx.material import LinearElastic
-from admm_dolfinx.meshing import tag_boundary
-from admm_dolfinx.scenes import example1
 from dolfinx import fem, mesh
 from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
+
+from admm_dolfinx import ContactProblem, Plane
+from admm_dolfinx.material import LinearElastic
+from admm_dolfinx.meshing import tag_boundary
+from admm_dolfinx.scenes import example1
 
 
 def box_problem(dim: int, n: int, clamp_top: bool = True):
@@ -69,8 +70,9 @@ def test_lumped_mass_is_row_sum_of_consistent_mass(dim, n):
     ones, rowsum = Mc.createVecs()
     ones.set(1.0)
     Mc.mult(ones, rowsum)
-    np.testing.assert_allclose(rowsum.array_r[problem.contact.dofs], problem.contact.mass,
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        rowsum.array_r[problem.contact.dofs], problem.contact.mass, rtol=1e-12
+    )
     for obj in (Mc, ones, rowsum):
         obj.destroy()
 

@@ -5,11 +5,12 @@ import math
 import numpy as np
 import pytest
 import ufl
+from dolfinx import fem, mesh
+from mpi4py import MPI
+
 from admm_dolfinx import ADMMSolver, Ball, ContactProblem, Obstacle, Plane
 from admm_dolfinx.material import LinearElastic
 from admm_dolfinx.scenes import example1
-from dolfinx import fem, mesh
-from mpi4py import MPI
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +42,8 @@ def test_p2_space(scene):
     V2 = fem.functionspace(scene.mesh, ("Lagrange", 2, (2,)))
     u, v = ufl.TrialFunction(V2), ufl.TestFunction(V2)
     with pytest.raises(ValueError, match="P1 Lagrange"):
-        _problem(scene, a=scene.material.bilinear_form(u, v), L=ufl.dot(ufl.as_vector((0.0, -1.0)), v) * ufl.dx, bcs=[])
+        load = ufl.dot(ufl.as_vector((0.0, -1.0)), v) * ufl.dx
+        _problem(scene, a=scene.material.bilinear_form(u, v), L=load, bcs=[])
 
 
 def test_not_a_form(scene):
@@ -50,7 +52,8 @@ def test_not_a_form(scene):
 
 
 def test_marker_without_facets(scene):
-    with pytest.raises(ValueError, match=r"No facets are tagged with contact marker 99.*\[1, 2, 3, 4\]"):
+    message = r"No facets are tagged with contact marker 99.*\[1, 2, 3, 4\]"
+    with pytest.raises(ValueError, match=message):
         _problem(scene, contact_marker=99)
 
 
@@ -70,8 +73,14 @@ def test_marker_present_on_one_rank_only():
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
     bc = fem.dirichletbc(np.zeros(2), fem.locate_dofs_topological(V, 1, ft.find(1)), V)
     f = fem.Constant(msh, np.array([0.0, -1.0]))
-    problem = ContactProblem(LinearElastic(10.0, 0.3).bilinear_form(u, v),
-                             ufl.dot(f, v) * ufl.dx, [bc], ft, 3, Plane((0, -0.01), (0, 1)))
+    problem = ContactProblem(
+        LinearElastic(10.0, 0.3).bilinear_form(u, v),
+        ufl.dot(f, v) * ufl.dx,
+        [bc],
+        ft,
+        3,
+        Plane((0, -0.01), (0, 1)),
+    )
     assert problem.num_contact_nodes >= 1
 
 
@@ -105,7 +114,7 @@ class _BadGap(Obstacle):
 
 @pytest.mark.parametrize("value", [math.nan, -math.inf])
 def test_bad_gap(scene, value):
-    with pytest.raises(ValueError, match="NaN or -inf at .* contact node"):
+    with pytest.raises(ValueError, match=r"NaN or -inf at .* contact node"):
         _problem(scene, obstacle=_BadGap(value))
 
 

@@ -6,10 +6,12 @@ to compare and the tests are skipped.
 
 import numpy as np
 import pytest
+from mpi4py import MPI
+
 from admm_dolfinx import ADMMSolver
 from admm_dolfinx.scenes import example1
+
 from conftest import gather_nodal, rel_diff
-from mpi4py import MPI
 
 parallel_only = pytest.mark.skipif(MPI.COMM_WORLD.size == 1, reason="needs mpiexec -n >= 2")
 

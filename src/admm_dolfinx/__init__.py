@@ -12,7 +12,7 @@ Typical use inside a FEniCS workflow::
 
     problem = admm_dolfinx.ContactProblem(a, L, bcs, facet_tags, contact_marker,
                                           admm_dolfinx.Plane(point, normal))
-    result = admm_dolfinx.ADMMSolver(problem, penalty=1e4).solve()
+    result = admm_dolfinx.ADMMSolver(problem).solve()  # penalty='auto': r*
     result.u, result.pressure
 """
 
@@ -22,6 +22,7 @@ from admm_dolfinx import _bootstrap  # noqa: F401  (must precede dolfinx/petsc4p
 from admm_dolfinx.admm import ADMMConvergenceError, ADMMResult, ADMMSolver
 from admm_dolfinx.kkt import KKTResiduals
 from admm_dolfinx.obstacles import Ball, Obstacle, Plane
+from admm_dolfinx.penalty import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.problem import ContactProblem
 
 try:
@@ -39,6 +40,8 @@ __all__ = [
     "ContactProblem",
     "KKTResiduals",
     "Obstacle",
+    "PenaltyEstimate",
     "Plane",
     "__version__",
+    "estimate_penalty",
 ]

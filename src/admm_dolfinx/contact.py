@@ -51,7 +51,6 @@ def contact_measure(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int) -> u
     return ds(marker)
 
 
-
 @dataclass
 class ContactSet:
     """The contact nodes owned by this rank and their geometry.

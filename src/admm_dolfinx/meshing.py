@@ -15,7 +15,16 @@ from dolfinx import mesh
 from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
-__all__ = ["MeshData", "build_on_root", "gmsh_session", "rectangle", "structured_rectangle", "tag_boundary"]
+__all__ = [
+    "MeshData",
+    "box",
+    "build_on_root",
+    "gmsh_session",
+    "quarter_disc",
+    "rectangle",
+    "structured_rectangle",
+    "tag_boundary",
+]
 
 MeshData = gmshio.MeshData
 
@@ -194,3 +203,117 @@ def tag_boundary(
     val = np.concatenate(values)
     order = np.argsort(idx)
     return mesh.meshtags(msh, fdim, idx[order], val[order])
+
+
+def quarter_disc(
+    comm: MPI.Comm, radius: float, h: float, h_contact: float, tags: dict[str, int]
+) -> MeshData:
+    """The lower-right quarter of a disc of radius R centred at (0, R).
+
+    Sides: ``"axis"`` (x = 0, the symmetry line), ``"top"`` (y = R, through the
+    centre) and ``"arc"`` (the curved part, which touches y = 0 at the origin).
+
+    Args:
+        comm: Communicator.
+        radius: R.
+        h: Element size away from the arc.
+        h_contact: Element size on the arc.
+        tags: Tags of ``"axis"``, ``"top"``, ``"arc"``.
+
+    Returns:
+        Mesh data.
+    """
+    R = radius
+
+    def build(gmsh):
+        disc = gmsh.model.occ.addDisk(0.0, R, 0.0, R, R)
+        box = gmsh.model.occ.addRectangle(0.0, 0.0, 0.0, R, R)
+        out, _ = gmsh.model.occ.intersect([(2, disc)], [(2, box)])
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(2, [e for _, e in out], 1)
+        eps = 1e-8 * R
+        _tag_curves_by_center(
+            gmsh,
+            1,
+            {
+                tags["axis"]: lambda c: abs(c[0]) < eps,
+                tags["top"]: lambda c: abs(c[1] - R) < eps,
+                tags["arc"]: lambda c: True,
+            },
+        )
+        arc = gmsh.model.getEntitiesForPhysicalGroup(1, tags["arc"])
+        field = gmsh.model.mesh.field
+        dist = field.add("Distance")
+        field.setNumbers(dist, "CurvesList", list(arc))
+        field.setNumber(dist, "Sampling", 200)
+        thr = field.add("Threshold")
+        field.setNumber(thr, "InField", dist)
+        field.setNumber(thr, "SizeMin", h_contact)
+        field.setNumber(thr, "SizeMax", h)
+        field.setNumber(thr, "DistMin", 0.0)
+        field.setNumber(thr, "DistMax", 0.5 * R)
+        field.setAsBackgroundMesh(thr)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        gmsh.model.mesh.generate(2)
+
+    return build_on_root(comm, "quarter_disc", 2, build)
+
+
+def box(
+    comm: MPI.Comm,
+    lower: tuple[float, float, float],
+    upper: tuple[float, float, float],
+    h_bottom: float,
+    h_top: float,
+    refinements: int,
+    tags: dict[str, int],
+) -> MeshData:
+    """Tetrahedral mesh of a box, graded from ``h_bottom`` (z = z0) to ``h_top``.
+
+    Faces: ``"bottom"``, ``"top"`` and ``"sides"``. The mesh is then split uniformly
+    ``refinements`` times by gmsh (each split: 8 children per tetrahedron).
+
+    Args:
+        comm: Communicator.
+        lower: (x0, y0, z0).
+        upper: (x1, y1, z1).
+        h_bottom: Element size on the bottom face.
+        h_top: Element size on the top face.
+        refinements: Uniform refinements after generation.
+        tags: Tags of ``"bottom"``, ``"top"``, ``"sides"``.
+
+    Returns:
+        Mesh data.
+    """
+    x0, y0, z0 = lower
+    x1, y1, z1 = upper
+
+    def build(gmsh):
+        vol = gmsh.model.occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0)
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [vol], 1)
+        eps = 1e-8 * max(x1 - x0, y1 - y0, z1 - z0)
+        _tag_curves_by_center(
+            gmsh,
+            2,
+            {
+                tags["bottom"]: lambda c: abs(c[2] - z0) < eps,
+                tags["top"]: lambda c: abs(c[2] - z1) < eps,
+                tags["sides"]: lambda c: True,
+            },
+        )
+        field = gmsh.model.mesh.field
+        f = field.add("MathEval")
+        field.setString(f, "F", f"{h_bottom} + ({h_top} - {h_bottom}) * (z - ({z0})) / ({z1 - z0})")
+        field.setAsBackgroundMesh(f)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.model.mesh.generate(3)
+        for _ in range(refinements):
+            gmsh.model.mesh.refine()
+
+    return build_on_root(comm, "box", 3, build)

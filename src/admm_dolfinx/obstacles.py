@@ -40,8 +40,12 @@ class Obstacle(abc.ABC):
             ray never meets the obstacle.
         """
 
-    def check_dimension(self, gdim: int) -> None:
-        """Raise if the obstacle cannot be used in ``gdim`` dimensions (default: no check)."""
+    def check_dimension(self, gdim: int) -> None:  # noqa: B027 - optional hook
+        """Raise if the obstacle cannot be used in ``gdim`` dimensions (default: no check).
+
+        Args:
+            gdim: Geometric dimension of the mesh.
+        """
 
 
 def _as_vector(value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:

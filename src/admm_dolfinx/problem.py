@@ -81,8 +81,10 @@ def _check_forms(a: ufl.Form, L: ufl.Form) -> fem.FunctionSpace:
     basix_element = getattr(element, "basix_element", None)
     family = getattr(basix_element, "family", None)
     degree = element.embedded_superdegree
-    if degree != 1 or str(family) != "ElementFamily.P" or getattr(
-        basix_element, "discontinuous", False
+    if (
+        degree != 1
+        or str(family) != "ElementFamily.P"
+        or getattr(basix_element, "discontinuous", False)
     ):
         raise ValueError(
             f"The displacement space must be continuous P1 Lagrange, got {element}. The "
@@ -152,9 +154,7 @@ class ContactProblem:
                 f"`facet_tags` tag entities of dimension {facet_tags.dim}; facet tags of "
                 f"dimension {msh.topology.dim - 1} are needed."
             )
-        if isinstance(contact_marker, bool) or not isinstance(
-            contact_marker, int | np.integer
-        ):
+        if isinstance(contact_marker, bool) or not isinstance(contact_marker, int | np.integer):
             raise TypeError(f"`contact_marker` must be an int, got {contact_marker!r}.")
         bcs = list(bcs or [])
         for bc in bcs:

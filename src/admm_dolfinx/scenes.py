@@ -16,11 +16,11 @@ from dolfinx import fem, mesh
 from mpi4py import MPI
 
 from admm_dolfinx.material import LinearElastic
-from admm_dolfinx.meshing import rectangle, structured_rectangle
-from admm_dolfinx.obstacles import Obstacle, Plane
+from admm_dolfinx.meshing import box, quarter_disc, rectangle, structured_rectangle
+from admm_dolfinx.obstacles import Ball, Obstacle, Plane
 from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["Scene", "example1"]
+__all__ = ["SCENES", "Scene", "example1", "example2", "example3"]
 
 
 @dataclass
@@ -60,7 +60,12 @@ class Scene:
     def problem(self, **kwargs) -> ContactProblem:
         """Build the contact problem of this scene (kwargs go to ContactProblem)."""
         return ContactProblem(
-            self.a, self.L, self.bcs, self.facet_tags, self.contact_marker, self.obstacle,
+            self.a,
+            self.L,
+            self.bcs,
+            self.facet_tags,
+            self.contact_marker,
+            self.obstacle,
             **kwargs,
         )
 
@@ -130,3 +135,122 @@ def example1(
         h=h,
         info={"E": E, "nu": nu, "traction": traction, "gap": gap, "mesher": mesher},
     )
+
+
+def example2(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 2000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    load: float = 1600.0,
+) -> Scene:
+    """Example 2 of the paper: the Hertz problem, a cylinder on a rigid foundation.
+
+    The paper's text is not self-consistent (radius 8, yet Γ_C is written
+    x1² + x2² = 16). This package reads it as follows: a cylinder of radius R = 8 rests
+    on the plane y = 0, touching it at the origin; by symmetry only the quarter
+    0 ≤ x ≤ R, 0 ≤ y ≤ R of the disc centred at (0, R) is modelled, with u_x = 0 on
+    the symmetry line x = 0 (Γ_D), a uniform downward traction of total force
+    ``load`` on the top side y = R (through the centre), and Γ_C the quarter arc.
+    Nothing fixes the vertical motion: A is singular (a floating body) and only the
+    contact holds the body, as in the paper.
+
+    Args:
+        comm: Communicator.
+        level: Mesh level 0, 1, 2, ...: the arc gets 34·2^level elements, so the
+            number of contact nodes is about 35, 69, 137, ... (the paper's meshes
+            have 35, 69, 125, 229, 457).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        radius: R.
+        load: Total downward force on the quarter's top side.
+
+    Returns:
+        The scene.
+    """
+    tags = {"axis": 1, "top": 2, "arc": 3}
+    arc = 0.5 * np.pi * radius
+    h_contact = arc / (34 * 2**level)
+    data = quarter_disc(comm, radius, 1.1 * h_contact, h_contact, tags)
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    t = fem.Constant(msh, np.array([0.0, -load / radius]))
+    axis = fem.locate_dofs_topological(V.sub(0), 1, facet_tags.find(tags["axis"]))
+    bcs = [fem.dirichletbc(0.0, axis, V.sub(0))]
+    return Scene(
+        name="example2",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=bcs,
+        contact_marker=tags["arc"],
+        obstacle=Plane(point=(0.0, 0.0), normal=(0.0, 1.0)),
+        h=h_contact,
+        info={"E": E, "nu": nu, "radius": radius, "load": load, "level": level},
+    )
+
+
+def example3(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 1e6,
+    nu: float = 0.45,
+    displacement: float = 0.2,
+) -> Scene:
+    """Example 3 of the paper: a block pressed onto a rigid half-ball.
+
+    Ω = (−0.5, 0.5) × (−1, 1) × (−0.5, 0.5), E = 10⁶, ν = 0.45. The top face is moved
+    by u_D = (0, 0, −0.2); the bottom face z = −0.5 is Γ_C; the obstacle is the ball of
+    radius 0.5 centred at (−0.3, 0, −1), which touches Γ_C at (−0.3, 0, −0.5).
+
+    Args:
+        comm: Communicator.
+        level: 0 is a graded gmsh mesh of about 200 nodes and 44 contact nodes (the
+            paper's has 198/45); each level splits every tetrahedron into 8 (about
+            1.1k/169, 7.4k/625, 52k/2.4k nodes; the paper's: 1289/153, 9245/603,
+            69897/2341).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        displacement: Downward displacement of the top face.
+
+    Returns:
+        The scene.
+    """
+    tags = {"bottom": 3, "top": 1, "sides": 4}
+    data = box(comm, (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5), 0.3, 0.28, level, tags)
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    zero = fem.Constant(msh, np.zeros(3))
+    top = fem.locate_dofs_topological(V, 2, facet_tags.find(tags["top"]))
+    bcs = [fem.dirichletbc(np.array([0.0, 0.0, -displacement]), top, V)]
+    return Scene(
+        name="example3",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(zero, v) * ufl.dx,
+        bcs=bcs,
+        contact_marker=tags["bottom"],
+        obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
+        h=0.3 / 2**level,
+        info={"E": E, "nu": nu, "displacement": displacement, "level": level},
+    )
+
+
+#: Scene builders by name.
+SCENES = {"example1": example1, "example2": example2, "example3": example3}

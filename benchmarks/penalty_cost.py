@@ -1,0 +1,113 @@
+"""Cost of the automatic penalty r* against the ADMM solve it serves.
+
+For each problem, in one run and side by side:
+
+* ``estimate``: ``estimate_penalty(problem)`` standalone (its own factorisations);
+* ``admm``: ``ADMMSolver(problem, penalty=r*).solve()`` standalone (factorisation
+  of A + r*NᵀMN included);
+* ``auto``: ``ADMMSolver(problem).solve()`` - the default path, where the estimate
+  shares the symbolic factorisation with the ADMM.
+
+The ratios estimate/admm and (auto − admm)/admm are printed as a markdown table and
+written to ``out_benchmarks/penalty_cost.csv``. Each measurement is the best of
+``--repeat`` runs (the machines are noisy). Run:
+
+    python benchmarks/penalty_cost.py            # Example 1 h=1/64, Example 3 level 3
+    python benchmarks/penalty_cost.py --quick    # small sizes, for a smoke test
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+
+import admm_dolfinx
+from admm_dolfinx.scenes import example1, example3
+
+
+def best_of(repeat, fn):
+    times, value = [], None
+    for _ in range(repeat):
+        MPI.COMM_WORLD.Barrier()
+        t0 = time.perf_counter()
+        value = fn()
+        times.append(MPI.COMM_WORLD.allreduce(time.perf_counter() - t0, op=MPI.MAX))
+    return min(times), value
+
+
+def measure(name, scene, repeat):
+    problem = scene.problem()
+
+    def estimate():
+        return admm_dolfinx.estimate_penalty(problem)
+
+    t_est, est = best_of(repeat, estimate)
+
+    def admm():
+        with admm_dolfinx.ADMMSolver(problem, penalty=est.r) as solver:
+            return solver.solve()
+
+    def auto():
+        with admm_dolfinx.ADMMSolver(problem) as solver:
+            return solver.solve()
+
+    t_admm, res = best_of(repeat, admm)
+    t_auto, _ = best_of(repeat, auto)
+    row = {
+        "problem": name,
+        "nodes": scene.num_nodes,
+        "m": problem.num_contact_nodes,
+        "r*": f"{est.r:.5g}",
+        "solves": est.solves,
+        "t_estimate": f"{t_est:.3f}",
+        "t_admm": f"{t_admm:.3f}",
+        "admm_iterations": res.iterations,
+        "t_factorization": f"{res.timings['factorization']:.3f}",
+        "estimate/admm": f"{t_est / t_admm:.2f}",
+        "t_auto": f"{t_auto:.3f}",
+        "(auto-admm)/admm": f"{(t_auto - t_admm) / t_admm:.2f}",
+    }
+    problem.destroy()
+    return row
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--out", default="out_benchmarks")
+    args = parser.parse_args()
+    cases = (
+        [
+            ("example1 h=1/16", lambda: example1(h=1 / 16)),
+            ("example3 level 1", lambda: example3(level=1)),
+        ]
+        if args.quick
+        else [
+            ("example1 h=1/64", lambda: example1(h=1 / 64)),
+            ("example3 level 3", lambda: example3(level=3)),
+        ]
+    )
+    rows = [measure(name, build(), args.repeat) for name, build in cases]
+    if MPI.COMM_WORLD.rank == 0:
+        keys = list(rows[0])
+        print("| " + " | ".join(keys) + " |")
+        print("|" + "---|" * len(keys))
+        for row in rows:
+            print("| " + " | ".join(str(row[k]) for k in keys) + " |")
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = out / ".penalty_cost.csv.tmp"
+        with tmp.open("w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows(rows)
+        tmp.replace(out / "penalty_cost.csv")
+
+
+if __name__ == "__main__":
+    main()

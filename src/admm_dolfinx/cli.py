@@ -1,0 +1,184 @@
+"""Command line: ``admm-dolfinx run <scene>`` and ``admm-dolfinx reproduce <table>``.
+
+Every command works under ``mpirun -n N admm-dolfinx ...``; only rank 0 prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+
+from admm_dolfinx.admm import DEFAULT_RTOL, ADMMConvergenceError, ADMMSolver
+from admm_dolfinx.output import atomic_directory, write_json, write_xdmf
+from admm_dolfinx.reproduce import TABLES, run_table
+from admm_dolfinx.scenes import SCENES
+
+
+def _say(*args) -> None:
+    if MPI.COMM_WORLD.rank == 0:
+        print(*args, flush=True)
+
+
+def _penalty(text: str):
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"penalty must be 'auto' or a number, got {text!r}"
+        ) from None
+
+
+def _build_scene(args):
+    if args.scene == "example1":
+        return SCENES["example1"](h=args.h, mesher=args.mesher)
+    return SCENES[args.scene](level=args.level)
+
+
+def cmd_run(args) -> int:
+    """Solve one scene and report (optionally a JSON summary and XDMF output)."""
+    comm = MPI.COMM_WORLD
+    scene = _build_scene(args)
+    problem = scene.problem()
+    _say(
+        f"{scene.name}: {scene.num_nodes} nodes, {problem.num_contact_nodes} contact nodes, "
+        f"{comm.size} process(es)"
+    )
+    t0 = time.perf_counter()
+    status = 0
+    try:
+        with ADMMSolver(
+            problem,
+            penalty=args.penalty,
+            rtol=args.rtol,
+            max_iter=args.max_iter,
+            petsc_options_prefix="run_",
+        ) as solver:
+            result = solver.solve()
+    except ADMMConvergenceError as err:
+        result, status = err.result, 2
+        _say(f"error: {err}")
+    _say(result.summary())
+    summary = {
+        "scene": scene.name,
+        "info": scene.info,
+        "nodes": scene.num_nodes,
+        "contact_nodes": problem.num_contact_nodes,
+        "processes": comm.size,
+        "converged": result.converged,
+        "iterations": result.iterations,
+        "penalty": result.penalty,
+        "rtol": args.rtol,
+        "active_nodes": result.num_active,
+        "max_pressure": result.extra["max_pressure"],
+        "kkt": result.kkt.as_dict(),
+        "timings": result.timings,
+        "wall_time": time.perf_counter() - t0,
+    }
+    if args.json:
+        write_json(comm, args.json, summary)
+        _say(f"wrote {args.json}")
+    if args.out:
+        with atomic_directory(comm, args.out) as folder:
+            write_xdmf(folder / "solution.xdmf", [result.u, result.pressure])
+            write_json(comm, folder / "summary.json", summary)
+        _say(f"wrote {args.out}/")
+    problem.destroy()
+    return status
+
+
+def cmd_reproduce(args) -> int:
+    """Regenerate one table, or all of them."""
+    names = list(TABLES) if args.table == "all" else [args.table]
+    t0 = time.perf_counter()
+    for name in names:
+        run_table(name, Path(args.out), quick=args.quick)
+    _say(
+        f"reproduce {args.table}: {time.perf_counter() - t0:.0f} s wall time; "
+        f"CSV files in {args.out}/"
+    )
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (also documents every command in ``--help``)."""
+    parser = argparse.ArgumentParser(
+        prog="admm-dolfinx",
+        description="Frictionless contact of an elastic body with a rigid obstacle, solved "
+        "by ADMM with the automatic penalty r* (Koko 2019). Run under mpirun for parallel.",
+    )
+    parser.add_argument(
+        "-v", "--verbose", action="store_true", help="log every ADMM iteration (rank 0)"
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser(
+        "run",
+        help="solve one scene and print the result summary",
+        description="Solve one of the paper's scenes: example1 (rectangle "
+        "on a foundation), example2 (Hertz quarter cylinder), example3 "
+        "(block on a half-ball).",
+    )
+    run.add_argument("scene", choices=sorted(SCENES))
+    run.add_argument("--h", type=float, default=1 / 32, help="example1: mesh size")
+    run.add_argument(
+        "--mesher",
+        choices=["gmsh", "builtin"],
+        default="gmsh",
+        help="example1: unstructured gmsh or structured DOLFINx mesh",
+    )
+    run.add_argument(
+        "--level",
+        type=int,
+        default=0,
+        help="example2/3: mesh level (each level halves the element size)",
+    )
+    run.add_argument(
+        "--penalty", type=_penalty, default="auto", help="penalty r, or 'auto' for r* (default)"
+    )
+    run.add_argument(
+        "--rtol",
+        type=float,
+        default=DEFAULT_RTOL,
+        help="relative-change tolerance (default %(default)g)",
+    )
+    run.add_argument("--max-iter", type=int, default=1000, help="iteration cap")
+    run.add_argument("--json", help="write a JSON summary to this file")
+    run.add_argument("--out", help="write solution.xdmf and summary.json to this folder")
+    run.set_defaults(func=cmd_run)
+
+    rep = sub.add_parser(
+        "reproduce",
+        help="regenerate the paper's Tables 1-6",
+        description="Regenerate a table of the paper from scratch: the "
+        "paper's numbers and ours side by side, as markdown on the "
+        "terminal and a CSV file. 'all' runs the six tables.",
+    )
+    rep.add_argument("table", choices=[*TABLES, "all"])
+    rep.add_argument("--out", default="out_reproduce", help="folder for the CSV files")
+    rep.add_argument(
+        "--quick",
+        action="store_true",
+        help="fewer meshes and samples (a smoke test, not the paper's tables)",
+    )
+    rep.set_defaults(func=cmd_reproduce)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``admm-dolfinx``."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s"
+    )
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,403 @@
+"""The automatic penalty r* = 1/sqrt(λ_min λ_max) (Koko 2019, §4–5 and Algorithm 5).
+
+ADMM contracts mode i of the dual error by |1 − rλ_i| / (1 + rλ_i), where λ_i are the
+non-zero eigenvalues of A⁻¹NᵀMN, i.e. of the m × m pencil on the contact dofs
+
+    M w = λ S w,     S = Schur complement of A onto the contact normal dofs,
+
+so the best fixed r balances the two extremes: r* = 1/sqrt(λ_min λ_max).  Each
+extreme is computed as the *largest* eigenvalue of a symmetric m × m operator with
+SLEPc's Krylov–Schur (the large end converges in tens of applications; asking for the
+small end of the wrong operator takes hundreds):
+
+λ_min = 1 / μ_max,  μ_max = largest eigenvalue of M^{-½} S M^{-½}.
+    S x is the reaction of the body when its contact normal displacements are
+    prescribed to x: u = N_Fᵀ D⁻¹ x + w with w in ker N_F minimising the energy, found
+    with one solve with Â = P A P + c N_FᵀN_F (P the nodal projector onto ker N_F,
+    which rotates nothing explicitly; Â is A_II in rotated coordinates, plus c on the
+    normal dofs). Then S x = D⁻¹ N_F A u.  Â is well posed even when A is singular
+    (floating bodies), because every rigid motion of such a body moves Γ_C normally.
+
+λ_max from θ_max, the largest eigenvalue of M^{½} N (A + r_a NᵀMN)⁻¹ Nᵀ M^{½}.
+    The eigenvalues are θ = λ / (1 + r_a λ), so λ = θ / (1 − r_a θ).  A small
+    auxiliary r_a (r_a λ_max ≲ 1) keeps this map well conditioned while making the
+    operator invertible for floating bodies, whose rigid motions appear as θ = 1/r_a
+    exactly (λ = ∞): they are detected, deflated, and do not enter r*, since no choice
+    of r changes how ADMM treats them.
+
+Factorisations: Â and A + r_a NᵀMN have A's sparsity pattern. Both are factorised
+in one :class:`~admm_dolfinx.operators.PenalisedOperator` - the one the ADMM then
+refactorises at r* - so the symbolic analysis (ordering) is computed once for all
+three and each of them costs one numeric factorisation.  Each operator application is one
+forward/backward substitution; :attr:`PenaltyEstimate.solves` counts them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx.common import Timer
+from petsc4py import PETSc
+from slepc4py import SLEPc
+
+from admm_dolfinx._logging import get_logger
+from admm_dolfinx.operators import PenalisedOperator
+from admm_dolfinx.petsc import apply_options, unique_prefix
+from admm_dolfinx.problem import ContactProblem
+
+__all__ = ["DEFAULT_PENALTY_TOL", "PenaltyEstimate", "estimate_penalty"]
+
+logger = get_logger(__name__)
+
+#: Default relative tolerance of the eigenvalue solves. r* needs a few digits only;
+#: see the README for how little it moves r*.
+DEFAULT_PENALTY_TOL = 1e-2
+
+#: A guess of λ_max/λ_min used to pick the auxiliary r_a = 1/(κ_guess λ_min); if the
+#: measured r_a λ_max is too large, r_a is lowered and λ_max recomputed.
+_KAPPA_GUESS = 1e4
+#: Accept r_a when r_a λ_max ≤ this (then λ = θ/(1 − r_aθ) amplifies errors ≤ 5x).
+_MAX_RA_LAMBDA = 4.0
+#: θ with 1 − r_a θ below this is a rigid motion (λ = ∞).
+_RIGID_TOL = 1e-6
+
+
+@dataclass
+class PenaltyEstimate:
+    """Result of :func:`estimate_penalty`.
+
+    Attributes:
+        r: The penalty r* = 1/sqrt(λ_min λ_max).
+        lambda_min: Smallest non-zero eigenvalue of A⁻¹NᵀMN.
+        lambda_max: Largest finite eigenvalue of A⁻¹NᵀMN.
+        solves: Linear solves (operator applications) used by both eigenvalue solves.
+        time: Wall-clock seconds, factorisations included.
+        details: Breakdown: solves and times per extreme, r_a, rigid modes deflated.
+    """
+
+    r: float
+    lambda_min: float
+    lambda_max: float
+    solves: int
+    time: float
+    details: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def condition_number(self) -> float:
+        """κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1)."""
+        return self.lambda_max / self.lambda_min
+
+
+def _probe_vector(coords: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """A pseudo-random start vector that depends only on node coordinates.
+
+    The Krylov sequence, and so the result, is then independent of the partition.
+    """
+    x = np.zeros((coords.shape[0], 3))
+    x[:, : coords.shape[1]] = coords
+    phase = np.sin(x @ np.array([12.9898, 78.233, 37.719]) + 0.5) * 43758.5453
+    return phase - np.floor(phase) - 0.5
+
+
+class _ContactSpace:
+    """Distributed m-vectors on the owned contact nodes, and the operators' plumbing."""
+
+    def __init__(self, problem: ContactProblem):
+        self.problem = problem
+        c = problem.contact
+        self.m_local = c.dofs.size
+        self.m = c.num_global
+        self.sqrt_mass = np.sqrt(c.mass)
+        self.free_sq = np.einsum("ij,ij->i", c.free_normals, c.free_normals)  # D = |ñ|²
+        self.b = problem.create_vector()
+        self.x = problem.create_vector()
+
+    def create_vec(self) -> PETSc.Vec:
+        vec = PETSc.Vec().createMPI((self.m_local, self.m), comm=self.problem.comm)
+        return vec
+
+    def start_vector(self) -> PETSc.Vec:
+        vec = self.create_vec()
+        with vec as arr:
+            arr[:] = _probe_vector(self.problem.contact.coordinates)
+        return vec
+
+    def shell(self, context: Any) -> PETSc.Mat:
+        size = (self.m_local, self.m)
+        mat = PETSc.Mat().createPython((size, size), context, comm=self.problem.comm)
+        mat.setUp()
+        return mat
+
+    def scatter(self, q: npt.NDArray[np.float64], out: PETSc.Vec, weights) -> None:
+        """Out = Σ_j ñ_j weights_j q_j  (a nodal force; Dirichlet components zero)."""
+        out.set(0.0)
+        c = self.problem.contact
+        bs = self.problem.V.dofmap.index_map_bs
+        with out as arr:
+            arr.reshape(-1, bs)[c.nodes, : self.problem.gdim] = (
+                c.free_normals * (weights * q)[:, None]
+            )
+
+    def gather(self, vec: PETSc.Vec) -> npt.NDArray[np.float64]:
+        """(N_F v)_j = ñ_j · v_j at the owned contact nodes."""
+        c = self.problem.contact
+        bs = self.problem.V.dofmap.index_map_bs
+        values = vec.array_r.reshape(-1, bs)[c.nodes, : self.problem.gdim]
+        return np.einsum("ij,ij->i", values, c.free_normals)
+
+    def destroy(self) -> None:
+        self.b.destroy()
+        self.x.destroy()
+
+
+class _ComplianceOperator:
+    """x ↦ M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½} x  (eigenvalues θ = λ/(1 + r_a λ))."""
+
+    def __init__(self, space: _ContactSpace, operator: PenalisedOperator):
+        self.space = space
+        self.operator = operator
+
+    def mult(self, mat, x, y):
+        s = self.space
+        s.scatter(x.array_r, s.b, s.sqrt_mass)
+        self.operator.solve(s.b, s.x)
+        with y as out:
+            out[:] = s.sqrt_mass * s.gather(s.x)
+
+
+class _SchurOperator:
+    """x ↦ M^{-½} S M^{-½} x with S the Schur complement onto contact normal dofs.
+
+    The projected stiffness Â is factorised in the shared :class:`PenalisedOperator`
+    (same sparsity pattern as A, so the symbolic analysis is computed once).
+    """
+
+    def __init__(self, space: _ContactSpace, operator: PenalisedOperator):
+        self.space = space
+        problem = space.problem
+        self.A = problem.A
+        self.operator = operator
+        hat = self._projected_stiffness(problem)
+        operator.load(hat, "the projected stiffness P A P + c NᵀN (Schur complement)")
+        hat.destroy()
+        self.rhs = problem.create_vector()
+        self.work = problem.create_vector()
+
+    def _projected_stiffness(self, problem: ContactProblem) -> PETSc.Mat:
+        """Â = P A P + c N_FᵀN_F with the nodal projector P = I − N_Fᵀ D⁻¹ N_F."""
+        c = problem.contact
+        bs = problem.V.dofmap.index_map_bs
+        A = problem.A
+        n_nodes = A.getLocalSize()[0] // bs
+        row0 = A.getOwnershipRange()[0]
+        # Nodal (bs × bs) blocks: identity for P and zero for NᵀN, except at contact nodes.
+        ntilde = np.zeros((c.nodes.size, bs))
+        ntilde[:, : problem.gdim] = c.free_normals
+        outer = np.einsum("ji,jk->jik", ntilde, ntilde)
+        p_blocks = np.tile(np.eye(bs), (n_nodes, 1, 1))
+        p_blocks[c.nodes] -= outer / np.einsum("ji,ji->j", ntilde, ntilde)[:, None, None]
+        q_blocks = np.zeros_like(p_blocks)
+        q_blocks[c.nodes] = outer
+        cols = row0 + (np.arange(n_nodes)[:, None] * bs + np.arange(bs)[None, :])
+        indices = np.repeat(cols, bs, axis=0).reshape(-1).astype(PETSc.IntType)
+        indptr = np.arange(0, n_nodes * bs * bs + 1, bs, dtype=PETSc.IntType)
+        sizes = A.getSizes()
+        P = PETSc.Mat().createAIJ(
+            sizes, csr=(indptr, indices, p_blocks.reshape(-1)), comm=problem.comm
+        )
+        Q = PETSc.Mat().createAIJ(
+            sizes, csr=(indptr, indices, q_blocks.reshape(-1)), comm=problem.comm
+        )
+        diagonal = A.getDiagonal()
+        c_scale = diagonal.sum() / diagonal.getSize()
+        diagonal.destroy()
+        hat = A.PtAP(P)
+        hat.axpy(c_scale, Q, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        hat.setOption(PETSc.Mat.Option.SPD, True)
+        P.destroy()
+        Q.destroy()
+        return hat
+
+    def mult(self, mat, x, y):
+        s = self.space
+        # u = N_Fᵀ D⁻¹ z (z = M^{-½} x): a displacement with the prescribed normal trace
+        z = x.array_r / s.sqrt_mass
+        s.scatter(z, s.x, 1.0 / s.free_sq)
+        # w ∈ ker N_F minimising the energy: Â w = −P A u  (P A u = A u − N_Fᵀ D⁻¹ N_F A u)
+        self.A.mult(s.x, self.work)
+        s.scatter(s.gather(self.work), self.rhs, 1.0 / s.free_sq)
+        self.rhs.aypx(-1.0, self.work)  # rhs = P A u
+        self.rhs.scale(-1.0)
+        self.operator.solve(self.rhs, s.b)
+        s.x.axpy(1.0, s.b)  # u + w
+        self.A.mult(s.x, self.work)
+        with y as out:
+            out[:] = s.gather(self.work) / s.free_sq / s.sqrt_mass
+
+    def free(self):
+        for obj in (self.rhs, self.work):
+            obj.destroy()
+
+
+def _largest_eigenvalues(
+    space: _ContactSpace,
+    context: Any,
+    prefix: str,
+    tol: float,
+    max_it: int,
+    deflation: list[PETSc.Vec],
+    start: PETSc.Vec,
+) -> tuple[float, PETSc.Vec, int]:
+    """Largest eigenvalue (and vector) of a symmetric shell operator; collective."""
+    mat = space.shell(context)
+    eps = SLEPc.EPS().create(comm=space.problem.comm)
+    try:
+        eps.setOperators(mat)
+        eps.setProblemType(SLEPc.EPS.ProblemType.HEP)
+        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
+        eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
+        # A small basis restarts (and checks convergence) early: cheapest at loose tol.
+        eps.setDimensions(nev=1, ncv=min(space.m, 8 if tol >= 1e-4 else 32))
+        eps.setTolerances(tol=tol, max_it=max_it)
+        if deflation:
+            eps.setDeflationSpace(deflation)
+        eps.setInitialSpace([start])
+        apply_options(eps, prefix, {})
+        eps.solve()
+        if eps.getConverged() < 1:
+            raise RuntimeError(
+                f"SLEPc did not converge to the extreme eigenvalue of the contact pencil "
+                f"within {max_it} restarts (tol {tol:g}, reason {eps.getConvergedReason()}). "
+                "Loosen penalty_tol or give the penalty explicitly."
+            )
+        vec = space.create_vec()
+        value = eps.getEigenpair(0, vec).real
+        return value, vec, eps.getIterationNumber()
+    finally:
+        eps.destroy()
+        mat.destroy()
+
+
+def estimate_penalty(
+    problem: ContactProblem,
+    *,
+    tol: float = DEFAULT_PENALTY_TOL,
+    max_it: int = 500,
+    operator: PenalisedOperator | None = None,
+    petsc_options: dict | None = None,
+    petsc_options_prefix: str | None = None,
+) -> PenaltyEstimate:
+    """Compute r* = 1/sqrt(λ_min λ_max) with SLEPc on the contact dofs; collective.
+
+    Args:
+        problem: The contact problem.
+        tol: Relative tolerance of both eigenvalue solves (SLEPc ``eps_tol``).
+        max_it: Maximum Krylov–Schur restarts.
+        operator: A :class:`PenalisedOperator` to use (and leave factorised at r_a), so
+            that the ADMM reuses its symbolic factorisation; a private one otherwise.
+        petsc_options: Options of the factorisations (MUMPS Cholesky by default).
+        petsc_options_prefix: Prefix; sub-objects get ``schur_``, ``lmin_``, ``lmax_``.
+
+    Returns:
+        The estimate.
+
+    Raises:
+        ValueError: For a tolerance outside (0, 1).
+        RuntimeError: If an eigenvalue solve does not converge.
+    """
+    if not (0.0 < tol < 1.0):
+        raise ValueError(f"tol must lie in (0, 1), got {tol}.")
+    prefix = petsc_options_prefix or unique_prefix("penalty_")
+    t_start = time.perf_counter()
+    space = _ContactSpace(problem)
+    own_operator = operator is None
+    if operator is None:
+        operator = PenalisedOperator(problem, prefix, petsc_options)
+    schur = None
+    vectors: list[PETSc.Vec] = []
+    details: dict[str, Any] = {"tol": tol, "m": space.m}
+    try:
+        # ---- λ_min = 1 / μ_max(M^{-½} S M^{-½})
+        with Timer("admm_dolfinx: r* lambda_min"):
+            t0 = time.perf_counter()
+            schur = _SchurOperator(space, operator)
+            start = space.start_vector()
+            vectors.append(start)
+            mu, vec, its = _largest_eigenvalues(
+                space, schur, prefix + "lmin_", tol, max_it, [], start
+            )
+            vectors.append(vec)
+            lambda_min = 1.0 / mu
+            details.update(
+                solves_min=operator.solves, time_min=time.perf_counter() - t0, restarts_min=its
+            )
+
+        # ---- λ_max from θ_max of M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½}
+        with Timer("admm_dolfinx: r* lambda_max"):
+            t0 = time.perf_counter()
+            solves_before = operator.solves
+            r_a = 1.0 / (_KAPPA_GUESS * lambda_min)
+            rigid: list[PETSc.Vec] = []
+            for _attempt in range(8):
+                operator.set_penalty(r_a)
+                theta, vec, its = _largest_eigenvalues(
+                    space,
+                    _ComplianceOperator(space, operator),
+                    prefix + "lmax_",
+                    tol / (1.0 + _MAX_RA_LAMBDA),
+                    max_it,
+                    rigid,
+                    start,
+                )
+                vectors.append(vec)
+                x = r_a * theta
+                if x > 1.0 - _RIGID_TOL:  # a rigid motion seen by Γ_C: deflate it
+                    rigid.append(vec)
+                    continue
+                lambda_max = theta / (1.0 - x)
+                if r_a * lambda_max <= _MAX_RA_LAMBDA:
+                    break
+                r_a = 1.0 / lambda_max  # too large: the map θ → λ amplified errors
+            else:  # pragma: no cover - needs > 6 rigid modes or a pathological spectrum
+                raise RuntimeError("could not separate λ_max from rigid motions")
+            details.update(
+                solves_max=operator.solves - solves_before,
+                time_max=time.perf_counter() - t0,
+                r_aux=r_a,
+                rigid_modes=len(rigid),
+                restarts_max=its,
+            )
+    finally:
+        if schur is not None:
+            schur.free()
+        for vec in vectors:
+            vec.destroy()
+        space.destroy()
+        if own_operator:
+            operator.destroy()
+
+    lambda_max = max(lambda_max, lambda_min)
+    r = 1.0 / math.sqrt(lambda_min * lambda_max)
+    estimate = PenaltyEstimate(
+        r=r,
+        lambda_min=lambda_min,
+        lambda_max=lambda_max,
+        solves=details["solves_min"] + details["solves_max"],
+        time=time.perf_counter() - t_start,
+        details=details,
+    )
+    logger.info(
+        "r* = %.6g (λ_min %.4e, λ_max %.4e, κ %.3g) from %d solves in %.3f s",
+        r,
+        lambda_min,
+        lambda_max,
+        estimate.condition_number,
+        estimate.solves,
+        estimate.time,
+    )
+    return estimate

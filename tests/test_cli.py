@@ -1,0 +1,62 @@
+"""The command line and the output writers."""
+
+import json
+
+import pytest
+from mpi4py import MPI
+
+from admm_dolfinx.cli import main
+from admm_dolfinx.output import atomic_directory
+
+
+def _shared_tmp(tmp_path_factory, name):
+    path = tmp_path_factory.mktemp(name) if MPI.COMM_WORLD.rank == 0 else None
+    return MPI.COMM_WORLD.bcast(path, root=0)
+
+
+def test_run_writes_json_and_xdmf(tmp_path_factory):
+    tmp = _shared_tmp(tmp_path_factory, "run")
+    status = main(
+        [
+            "run",
+            "example1",
+            "--h",
+            "0.125",
+            "--json",
+            str(tmp / "s.json"),
+            "--out",
+            str(tmp / "out"),
+        ]
+    )
+    assert status == 0
+    data = json.loads((tmp / "s.json").read_text())
+    assert data["converged"] and data["iterations"] > 0 and data["contact_nodes"] == 16
+    assert data["processes"] == MPI.COMM_WORLD.size
+    assert (tmp / "out" / "solution.xdmf").exists() and (tmp / "out" / "solution.h5").exists()
+
+
+def test_run_reports_non_convergence(tmp_path_factory):
+    tmp = _shared_tmp(tmp_path_factory, "fail")
+    status = main(
+        ["run", "example1", "--h", "0.125", "--max-iter", "2", "--json", str(tmp / "s.json")]
+    )
+    assert status == 2
+    assert json.loads((tmp / "s.json").read_text())["converged"] is False
+
+
+def test_atomic_directory_leaves_nothing_on_failure(tmp_path_factory):
+    tmp = _shared_tmp(tmp_path_factory, "atomic")
+    target = tmp / "result"
+    with pytest.raises(RuntimeError), atomic_directory(MPI.COMM_WORLD, target) as folder:
+        (folder / f"part{MPI.COMM_WORLD.rank}.txt").write_text("half")
+        raise RuntimeError("interrupted")
+    MPI.COMM_WORLD.Barrier()
+    assert not target.exists()
+    assert list(tmp.iterdir()) == []
+
+
+def test_help_lists_commands(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "run" in out and "reproduce" in out

@@ -1,0 +1,102 @@
+"""r* against a dense reference (numpy/scipy), floating bodies, and factorisation reuse."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from admm_dolfinx import ADMMSolver, estimate_penalty
+from admm_dolfinx.petsc import factorization_count
+from admm_dolfinx.scenes import example1, example2, example3
+
+from dense_reference import algorithm5_eigenvalues, rotated_pencil_eigenvalues
+
+serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="dense reference is serial")
+
+TIGHT = 1e-10
+
+
+def _compare(est, lmin, lmax, rel):
+    r_ref = 1.0 / np.sqrt(lmin * lmax)
+    assert est.lambda_min == pytest.approx(lmin, rel=rel)
+    assert est.lambda_max == pytest.approx(lmax, rel=rel)
+    assert est.r == pytest.approx(r_ref, rel=rel)
+
+
+@serial_only
+@pytest.mark.parametrize("h", [1 / 8, 1 / 16, 1 / 32, 1 / 64])
+def test_example1_against_algorithm5(h):
+    problem = example1(h=h).problem()
+    ev = algorithm5_eigenvalues(problem)
+    assert ev.size == problem.num_contact_nodes
+    _compare(estimate_penalty(problem, tol=TIGHT), ev[0], ev[-1], 1e-6)
+    loose = estimate_penalty(problem)  # default tolerance
+    _compare(loose, ev[0], ev[-1], 0.05)
+    assert loose.solves < 60
+
+
+@serial_only
+@pytest.mark.parametrize("level", [0, 1])
+def test_example3_against_algorithm5(level):
+    problem = example3(level=level).problem()
+    ev = algorithm5_eigenvalues(problem)
+    _compare(estimate_penalty(problem, tol=TIGHT), ev[0], ev[-1], 1e-6)
+    _compare(estimate_penalty(problem), ev[0], ev[-1], 0.05)
+
+
+@serial_only
+def test_rotated_reference_agrees_with_algorithm5():
+    """The general (rotated) dense reference reproduces the literal Algorithm 5."""
+    problem = example1(h=1 / 8).problem()
+    np.testing.assert_allclose(
+        rotated_pencil_eigenvalues(problem), algorithm5_eigenvalues(problem), rtol=1e-9
+    )
+
+
+@serial_only
+@pytest.mark.parametrize("level", [0, 1])
+def test_floating_curved_body(level):
+    """Hertz quarter cylinder: curved Γ_C and a free vertical translation (A singular)."""
+    problem = example2(level=level).problem()
+    lam = rotated_pencil_eigenvalues(problem)
+    assert np.isinf(lam[-1]) and np.isfinite(lam[-2])  # exactly one rigid mode seen by Γ_C
+    est = estimate_penalty(problem, tol=TIGHT)
+    assert est.details["rigid_modes"] == 1
+    _compare(est, lam[0], lam[-2], 1e-6)
+    _compare(estimate_penalty(problem), lam[0], lam[-2], 0.05)
+    # and the ADMM converges at that r, held only by the contact
+    with ADMMSolver(problem, penalty=est.r) as solver:
+        result = solver.solve()
+    assert result.kkt.max() < 1e-4
+    assert result.num_active > 0
+
+
+def test_auto_penalty_shares_one_symbolic_factorisation():
+    problem = example1(h=1 / 16).problem()
+    sym = PETSc.Log.Event("MatCholFctrSym")
+    sym0 = sym.getPerfInfo()["count"]
+    num0 = factorization_count()
+    with ADMMSolver(problem) as solver:  # penalty="auto" is the default
+        result = solver.solve()
+        estimate = solver.penalty_estimate
+    assert estimate is not None and result.penalty == estimate.r
+    assert sym.getPerfInfo()["count"] - sym0 == 1
+    # projected stiffness, A + r_a K, A + r* K: three numeric factorisations
+    assert factorization_count() - num0 == 3
+    assert result.timings["penalty"] == estimate.time
+
+
+def test_parallel_estimate_matches_serial():
+    problem = example1(h=1 / 16).problem()
+    est = estimate_penalty(problem, tol=TIGHT)
+    serial = estimate_penalty(example1(MPI.COMM_SELF, h=1 / 16).problem(), tol=TIGHT)
+    assert est.r == pytest.approx(serial.r, rel=1e-6)
+    assert est.lambda_min == pytest.approx(serial.lambda_min, rel=1e-6)
+    assert est.lambda_max == pytest.approx(serial.lambda_max, rel=1e-6)
+
+
+@pytest.mark.parametrize("tol", [0.0, 1.0, -1e-3])
+def test_bad_tolerance(tol):
+    problem = example1(h=1 / 8, mesher="builtin").problem()
+    with pytest.raises(ValueError, match="tol must lie in"):
+        estimate_penalty(problem, tol=tol)
