@@ -12,10 +12,13 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
+TIMEOUT = 600  # seconds per demo run
 
 # demo script -> arguments for its smallest size
 DEMOS: dict[str, list[str]] = {
-    "example1.py": ["--h", "0.125"],
+    "example1.py": ["--h", "0.125", "--samples", "20"],
+    "hertz.py": ["--level", "0", "--samples", "20"],
+    "block_on_ball.py": ["--level", "0", "--samples", "10"],
 }
 
 
@@ -24,11 +27,24 @@ def main() -> int:
     for script, extra in DEMOS.items():
         for nproc in (1, 2):
             with tempfile.TemporaryDirectory() as tmp:
-                cmd = [sys.executable, str(HERE / script), *extra, "--out", f"{tmp}/out"]
+                # -m mpi4py: an exception on one rank aborts all instead of hanging
+                cmd = [
+                    sys.executable,
+                    "-m",
+                    "mpi4py",
+                    str(HERE / script),
+                    *extra,
+                    "--out",
+                    f"{tmp}/out",
+                ]
                 if nproc > 1:
                     cmd = [str(MPIEXEC), "-n", str(nproc), *cmd]
                 print(f"$ {' '.join(cmd)}", flush=True)
-                proc = subprocess.run(cmd, check=False)
+                try:
+                    proc = subprocess.run(cmd, check=False, timeout=TIMEOUT)
+                except subprocess.TimeoutExpired:
+                    failures.append(f"{script} (np={nproc}, timed out after {TIMEOUT} s)")
+                    continue
                 if proc.returncode != 0:
                     failures.append(f"{script} (np={nproc})")
     if failures:

@@ -88,8 +88,15 @@ class ADMMResult:
         status = "converged" if self.converged else "NOT CONVERGED"
         k = self.kkt
         t = self.timings
+        est = self.extra.get("penalty_estimate")
+        how = (
+            f" (r* from λ_min {est['lambda_min']:.4g}, λ_max {est['lambda_max']:.4g}, "
+            f"{est['solves']} solves)"
+            if est
+            else ""
+        )
         lines = [
-            f"ADMM {status} in {self.iterations} iterations, r = {self.penalty:.6g}",
+            f"ADMM {status} in {self.iterations} iterations, r = {self.penalty:.6g}{how}",
             f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
             f"  max pressure = {self.extra.get('max_pressure', float('nan')):.6g}",
             "  KKT residuals (relative): "
@@ -334,7 +341,12 @@ class ADMMSolver:
             multiplier=lam,
             num_active=history["active"][-1],
             num_contact_nodes=c.num_global,
-            extra={"max_pressure": problem.global_norm(lam, np.inf)},
+            extra={
+                "max_pressure": problem.global_norm(lam, np.inf),
+                "penalty_estimate": self.penalty_estimate.as_dict()
+                if self.penalty_estimate
+                else None,
+            },
         )
         if not converged:
             raise ADMMConvergenceError(

@@ -14,7 +14,8 @@ from pathlib import Path
 from mpi4py import MPI
 
 from admm_dolfinx.admm import DEFAULT_RTOL, ADMMConvergenceError, ADMMSolver
-from admm_dolfinx.output import atomic_directory, write_json, write_xdmf
+from admm_dolfinx.output import write_json
+from admm_dolfinx.report import result_summary, write_scene_outputs
 from admm_dolfinx.reproduce import TABLES, run_table
 from admm_dolfinx.scenes import SCENES
 
@@ -65,29 +66,18 @@ def cmd_run(args) -> int:
         result, status = err.result, 2
         _say(f"error: {err}")
     _say(result.summary())
-    summary = {
-        "scene": scene.name,
-        "info": scene.info,
-        "nodes": scene.num_nodes,
-        "contact_nodes": problem.num_contact_nodes,
-        "processes": comm.size,
-        "converged": result.converged,
-        "iterations": result.iterations,
-        "penalty": result.penalty,
+    summary = result_summary(scene, problem, result) | {
         "rtol": args.rtol,
-        "active_nodes": result.num_active,
-        "max_pressure": result.extra["max_pressure"],
-        "kkt": result.kkt.as_dict(),
-        "timings": result.timings,
         "wall_time": time.perf_counter() - t0,
     }
     if args.json:
         write_json(comm, args.json, summary)
         _say(f"wrote {args.json}")
     if args.out:
-        with atomic_directory(comm, args.out) as folder:
-            write_xdmf(folder / "solution.xdmf", [result.u, result.pressure])
-            write_json(comm, folder / "summary.json", summary)
+        coordinate = "angle" if scene.name == "example2" else "x"
+        write_scene_outputs(
+            args.out, scene, problem, result, coordinate=coordinate, extra={"rtol": args.rtol}
+        )
         _say(f"wrote {args.out}/")
     problem.destroy()
     return status
@@ -150,7 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--max-iter", type=int, default=1000, help="iteration cap")
     run.add_argument("--json", help="write a JSON summary to this file")
-    run.add_argument("--out", help="write solution.xdmf and summary.json to this folder")
+    run.add_argument(
+        "--out", help="write solution.xdmf, the figures and summary.json to this folder"
+    )
     run.set_defaults(func=cmd_run)
 
     rep = sub.add_parser(

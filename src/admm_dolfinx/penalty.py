@@ -87,6 +87,17 @@ class PenaltyEstimate:
     time: float
     details: dict[str, Any] = field(default_factory=dict)
 
+    def as_dict(self) -> dict[str, Any]:
+        """Plain numbers for reports and JSON."""
+        return {
+            "r": self.r,
+            "lambda_min": self.lambda_min,
+            "lambda_max": self.lambda_max,
+            "solves": self.solves,
+            "time": self.time,
+            "rigid_modes": self.details.get("rigid_modes", 0),
+        }
+
     @property
     def condition_number(self) -> float:
         """κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1)."""
