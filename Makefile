@@ -1,20 +1,29 @@
 # admm_dolfinx: two commands on a fresh machine.
 #   make demo   Example 1 of the paper, end to end (creates/refreshes .venv first)
-#   make test   the test suite, serially and under mpiexec -n 2 and -n 3, plus the demos
+#   make test   the test suite, serially and under mpiexec -n 2 (and -n 3), every demo
+#               serially and under mpiexec -n 2, and a quick `reproduce all`
+# and, for reproduction:
+#   make reproduce OUT=dir   the paper's Tables 1-6 and figures (the Dockerfiles run this)
 SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
-MPIEXEC := $(VENV)/bin/mpiexec
+# What `make venv` installs. The PyPI wheel `dolfinx-solver-real` (extra `fenics`) brings
+# DOLFINx, PETSc, SLEPc, MUMPS and MPICH; in a FEniCSx image use
+#   make venv VENV_FLAGS=--system-site-packages EXTRAS=scenes,plot,test
 EXTRAS ?= fenics,scenes,plot,test,dev
+VENV_FLAGS ?=
+# mpiexec of the venv (from the MPICH wheel) unless the environment provides one
+MPIEXEC ?= $(if $(wildcard $(VENV)/bin/mpiexec),$(VENV)/bin/mpiexec,mpiexec)
+OUT ?= out_reproduce
 PYTEST := -m pytest -q -p no:cacheprovider
 export PYVISTA_OFF_SCREEN ?= true
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: venv demo test test-serial test-mpi test-demos lint reproduce clean
+.PHONY: venv demo test test-serial test-mpi test-demos reproduce reproduce-quick lint clean
 
 # The venv is rebuilt when the project's metadata changes (or was never built).
 $(VENV)/.installed: pyproject.toml tools/find-python.sh
-	@python=$$(tools/find-python.sh) && echo "using $$python" && "$$python" -m venv $(VENV)
+	@python=$$(tools/find-python.sh) && echo "using $$python" && "$$python" -m venv $(VENV_FLAGS) $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[$(EXTRAS)]"
 	@touch $@
@@ -24,7 +33,7 @@ venv: $(VENV)/.installed
 demo: venv
 	$(PY) demos/example1.py
 
-test: test-serial test-mpi test-demos
+test: test-serial test-mpi test-demos reproduce-quick
 
 test-serial: venv
 	$(PY) $(PYTEST)
@@ -35,6 +44,12 @@ test-mpi: venv
 
 test-demos: venv
 	$(PY) demos/run_all.py
+
+reproduce: venv
+	$(PY) -m admm_dolfinx.cli reproduce all --out $(OUT)
+
+reproduce-quick: venv
+	$(PY) -m admm_dolfinx.cli reproduce all --quick --out $(OUT)_quick
 
 lint: venv
 	$(VENV)/bin/ruff check src tests demos benchmarks

@@ -37,11 +37,12 @@ parser.add_argument("--h", type=float, default=1 / 32, help="mesh size (default 
 parser.add_argument("--mesher", choices=["gmsh", "builtin"], default="gmsh")
 parser.add_argument("--penalty", default="auto", help="penalty r, or 'auto' for r*")
 parser.add_argument(
-    "--rtol",
-    type=float,
-    default=admm_dolfinx.admm.DEFAULT_RTOL,
-    help="relative-change tolerance (default %(default)g)",
+    "--mode",
+    choices=["accelerated", "paper"],
+    default="accelerated",
+    help="accelerated ADMM (default) or the paper's algorithm and stopping test",
 )
+parser.add_argument("--rtol", type=float, default=None, help="tolerance (default: the mode's)")
 parser.add_argument(
     "--samples",
     type=int,
@@ -86,7 +87,7 @@ say(
 
 penalty = args.penalty if args.penalty == "auto" else float(args.penalty)
 with admm_dolfinx.ADMMSolver(
-    problem, penalty=penalty, rtol=args.rtol, petsc_options_prefix="example1_"
+    problem, penalty=penalty, mode=args.mode, rtol=args.rtol, petsc_options_prefix="example1_"
 ) as solver:
     result = solver.solve()
 say(result.summary())
@@ -99,7 +100,7 @@ say(result.summary())
 sweep = None
 if args.samples > 0:
     sweep = sample_penalty(
-        problem, paper_penalty_grid(scene.info["E"], args.samples), rtol=args.rtol
+        problem, paper_penalty_grid(scene.info["E"], args.samples), mode=args.mode, rtol=args.rtol
     )
     say(
         f"sampled r̄ = {sweep.r_best:.6g} needs {sweep.iterations_best} iterations "

@@ -34,11 +34,12 @@ parser.add_argument(
 )
 parser.add_argument("--penalty", default="auto", help="penalty r, or 'auto' for r*")
 parser.add_argument(
-    "--rtol",
-    type=float,
-    default=admm_dolfinx.admm.DEFAULT_RTOL,
-    help="relative-change tolerance (default %(default)g)",
+    "--mode",
+    choices=["accelerated", "paper"],
+    default="accelerated",
+    help="accelerated ADMM (default) or the paper's algorithm and stopping test",
 )
+parser.add_argument("--rtol", type=float, default=None, help="tolerance (default: the mode's)")
 parser.add_argument(
     "--samples",
     type=int,
@@ -76,7 +77,7 @@ say(
 
 penalty = args.penalty if args.penalty == "auto" else float(args.penalty)
 with admm_dolfinx.ADMMSolver(
-    problem, penalty=penalty, rtol=args.rtol, petsc_options_prefix="hertz_"
+    problem, penalty=penalty, mode=args.mode, rtol=args.rtol, petsc_options_prefix="hertz_"
 ) as solver:
     result = solver.solve()
 say(result.summary())
@@ -88,7 +89,7 @@ if solver.penalty_estimate is not None:
 sweep = None
 if args.samples > 0:
     sweep = sample_penalty(
-        problem, paper_penalty_grid(scene.info["E"], args.samples), rtol=args.rtol
+        problem, paper_penalty_grid(scene.info["E"], args.samples), mode=args.mode, rtol=args.rtol
     )
     say(
         f"sampled r̄ = {sweep.r_best:.6g} needs {sweep.iterations_best} iterations; "

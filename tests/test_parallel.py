@@ -16,9 +16,9 @@ from conftest import gather_nodal, rel_diff
 parallel_only = pytest.mark.skipif(MPI.COMM_WORLD.size == 1, reason="needs mpiexec -n >= 2")
 
 
-def _solve(comm, h, mesher):
+def _solve(comm, h, mesher, **options):
     problem = example1(comm, h=h, mesher=mesher).problem()
-    with ADMMSolver(problem, penalty=3000.0, rtol=1e-10, max_iter=2000) as solver:
+    with ADMMSolver(problem, penalty=3000.0, rtol=1e-10, max_iter=2000, **options) as solver:
         result = solver.solve()
     coords, u = gather_nodal(result.u)
     c = problem.contact
@@ -29,15 +29,27 @@ def _solve(comm, h, mesher):
 
 
 @parallel_only
-@pytest.mark.parametrize("mesher", ["gmsh", "builtin"])
-def test_parallel_matches_serial(mesher):
-    par, xp, up, cp, lp = _solve(MPI.COMM_WORLD, 1 / 16, mesher)
-    ser, xs, us, cs, ls = _solve(MPI.COMM_SELF, 1 / 16, mesher)
+@pytest.mark.parametrize(
+    "mesher,options",
+    [
+        ("gmsh", {"mode": "paper"}),
+        ("builtin", {"mode": "paper"}),
+        ("gmsh", {}),
+        ("gmsh", {"alpha": 1.6, "anderson": 5}),
+    ],
+)
+def test_parallel_matches_serial(mesher, options):
+    par, xp, up, cp, lp = _solve(MPI.COMM_WORLD, 1 / 16, mesher, **options)
+    ser, xs, us, cs, ls = _solve(MPI.COMM_SELF, 1 / 16, mesher, **options)
     # Contact facets span process boundaries: make sure the partition really cuts Γ_C.
     owners = MPI.COMM_WORLD.allgather(par.multiplier.size > 0)
     assert sum(owners) >= 2
     np.testing.assert_allclose(xp, xs, atol=1e-12)
     np.testing.assert_allclose(cp, cs, atol=1e-12)
+    # the same iterate sequence, up to round-off
     assert par.iterations == ser.iterations
+    assert par.history["accelerated"] == ser.history["accelerated"]
+    for key in ("fpr", "equilibrium", "du"):
+        np.testing.assert_allclose(par.history[key], ser.history[key], rtol=1e-6, atol=1e-14)
     assert rel_diff(up, us) <= 1e-10
     assert rel_diff(lp, ls) <= 1e-10

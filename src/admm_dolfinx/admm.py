@@ -1,21 +1,43 @@
-"""The ADMM iteration for unilateral contact (Koko 2019, Algorithm 2).
+"""The ADMM iteration for unilateral contact (Koko 2019, Algorithm 2), and its acceleration.
 
 With the lumped contact mass M, nodal normals N and the gap g (design.md §1–2), one
-iteration is
+iteration maps the state z = (p, λ) to
 
-    (A + r NᵀMN) u^{k+1} = f + NᵀM (r p^k − λ^k)       (step 1: one solve)
-    p^{k+1} = min(N u^{k+1} + λ^k / r, g)               (step 2: node-wise projection)
-    λ^{k+1} = max(λ^k + r (N u^{k+1} − g), 0)           (step 3: multiplier update)
+    (A + r NᵀMN) u = f + NᵀM (r p − λ)              step 1: one solve (stored factors)
+    ξ  = α N u + (1 − α) p                          over-relaxation (α = 1: the paper)
+    p⁺ = min(ξ + λ / r, g)                          step 2: node-wise projection
+    λ⁺ = max(λ + r (ξ − g), 0)                      step 3: multiplier update
 
-The matrix A_r = A + r NᵀMN is fixed while r is fixed: it is factorised once (MUMPS
-Cholesky by default) and every iteration is one forward/backward substitution.
+A_r = A + r NᵀMN is fixed while r is: it is factorised once (MUMPS Cholesky by default)
+and every iteration is one forward/backward substitution.
 
-Stopping (the paper's test): the relative changes ‖u^{k+1} − u^k‖/‖u^{k+1}‖ and
-‖p^{k+1} − p^k‖/‖p^{k+1}‖ both fall below ``rtol``.  After the loop the relative KKT
-residuals (:mod:`admm_dolfinx.kkt`) are computed and stored in the result.
+Two ideas cut the iteration count on the same factorisation:
+
+* over-relaxation ``alpha`` ∈ (0, 2) (Eckstein–Bertsekas; OSQP's default is 1.6);
+* Anderson acceleration (``anderson`` = memory k) of the map z ↦ T(z): from the last k
+  residuals f = T(z) − z, a least-squares combination extrapolates the next state.
+  It is safeguarded: an extrapolated state whose fixed-point residual is not smaller
+  than that of the last accepted state is rejected and the plain step taken instead
+  (the rejected evaluation still counts as an iteration). Extrapolated states are
+  projected onto p ≤ g, λ ≥ 0.
+
+Stopping tests:
+
+* ``"kkt"`` (default): the scaled fixed-point residual ‖T(z) − z‖_W / ‖T(z)‖_W and the
+  relative KKT residuals of (u, λ⁺) - penetration, complementarity and equilibrium -
+  are all ≤ ``rtol``. The equilibrium residual comes from the identity
+  A u − f + NᵀMλ⁺ = NᵀM (r(p − Nu) + λ⁺ − λ), so it costs no extra matrix product.
+  W weighs p by M and λ by M/r², so both parts are displacements.
+* ``"change"`` (the paper's): the relative changes of u and p⁺ are ≤ ``rtol``.
+
+``mode="paper"`` is the paper's algorithm: α = 1, no acceleration, the relative-change
+test at ``rtol = 1e-5`` (which reproduces its iteration counts).
+
+After the loop the relative KKT residuals are recomputed independently
+(:mod:`admm_dolfinx.kkt`) and stored in the result.
 
 Failure policy: a solve that reaches ``max_iter`` raises :class:`ADMMConvergenceError`;
-the partial result is attached to the exception as ``err.result``.  A returned result
+the partial result is attached to the exception as ``err.result``. A returned result
 is always a converged one.
 """
 
@@ -31,8 +53,10 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import fem
 from dolfinx.common import Timer
+from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
+from admm_dolfinx.anderson import AndersonMixer
 from admm_dolfinx.kkt import KKTResiduals, compute_kkt_residuals
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.penalty import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_penalty
@@ -43,10 +67,17 @@ __all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]
 
 logger = get_logger(__name__)
 
-#: Default tolerance of the relative-change test. With it, Example 1 needs the
+#: Tolerance of the paper's relative-change test. With it, Example 1 needs the
 #: iteration counts of the paper's Table 1 (19 at r̄ and 35 at r* for h = 1/8, against
 #: our 19 and 34), so it is taken to be the paper's tolerance.
-DEFAULT_RTOL = 1e-5
+PAPER_RTOL = 1e-5
+#: Default tolerance of the KKT / fixed-point-residual test.
+DEFAULT_RTOL = 1e-6
+#: Defaults of the accelerated mode, chosen by ``benchmarks/acceleration.py``.
+DEFAULT_ALPHA = 1.0
+DEFAULT_ANDERSON = 5
+
+_STOPPING = ("kkt", "change")
 
 
 @dataclass
@@ -58,16 +89,23 @@ class ADMMResult:
         pressure: Contact pressure λ ≥ 0 as a P1 scalar Function, zero off Γ_C.
         converged: Whether the stopping test was met (always True for a returned
             result; False only on the result attached to an ADMMConvergenceError).
-        iterations: Number of ADMM iterations (= step-1 solves).
+        iterations: Number of ADMM iterations (= step-1 solves, rejected Anderson
+            steps included).
         penalty: The penalty parameter r that was used.
-        history: Per-iteration lists: ``du`` and ``dp`` (relative changes of u and p),
-            ``primal`` (‖Nu − p‖/‖Nu‖), ``active`` (global number of nodes with λ > 0).
-        timings: Wall-clock seconds: ``assembly`` (problem operators), ``operator``
-            (A + rK), ``factorization``, ``iterations``, ``kkt``, ``total``.
-        kkt: Relative KKT residuals of (u, λ).
+        history: Per-iteration lists: ``du``, ``dp`` (relative changes of u and p),
+            ``fpr`` (scaled fixed-point residual), ``feasibility``, ``complementarity``,
+            ``equilibrium`` (relative KKT residuals), ``active`` (global number of
+            nodes with λ > 0) and ``accelerated`` (1 if the evaluated state was an
+            accepted Anderson extrapolation, −1 if rejected, 0 for a plain step).
+        timings: Wall-clock seconds: ``assembly`` (problem operators), ``penalty``
+            (r*), ``operator`` (A + rK), ``factorization``, ``iterations``, ``kkt``,
+            ``total``.
+        kkt: Relative KKT residuals of (u, λ), computed independently after the loop.
         multiplier: λ at the owned contact nodes (local array).
         num_active: Global number of contact nodes with λ > 0.
         num_contact_nodes: Global number m of contact nodes.
+        settings: The solver settings (mode, alpha, anderson, stopping, rtol).
+        extra: ``max_pressure`` and the ``penalty_estimate`` (as a dict) if any.
     """
 
     u: fem.Function
@@ -81,6 +119,7 @@ class ADMMResult:
     multiplier: npt.NDArray[np.float64]
     num_active: int
     num_contact_nodes: int
+    settings: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def summary(self) -> str:
@@ -95,8 +134,11 @@ class ADMMResult:
             if est
             else ""
         )
+        s = self.settings
         lines = [
             f"ADMM {status} in {self.iterations} iterations, r = {self.penalty:.6g}{how}",
+            f"  {s.get('mode', '')} mode: alpha {s.get('alpha')}, Anderson memory "
+            f"{s.get('anderson')}, stopping '{s.get('stopping')}' at rtol {s.get('rtol'):g}",
             f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
             f"  max pressure = {self.extra.get('max_pressure', float('nan')):.6g}",
             "  KKT residuals (relative): "
@@ -133,10 +175,10 @@ def _check_penalty(r: Any) -> float:
     return value
 
 
-def _relative_change(change: float, reference: float) -> float:
-    if change == 0.0:
+def _ratio(num: float, den: float) -> float:
+    if num == 0.0:
         return 0.0
-    return change / reference if reference > 0.0 else math.inf
+    return num / den if den > 0.0 else math.inf
 
 
 class ADMMSolver:
@@ -146,16 +188,21 @@ class ADMMSolver:
         problem: The contact problem.
         penalty: Penalty parameter r > 0, or ``"auto"`` for r* = 1/sqrt(λ_min λ_max)
             from :func:`~admm_dolfinx.penalty.estimate_penalty` (the default).
-        rtol: Tolerance of the paper's relative-change stopping test (> 0); the
-            default 1e-5 reproduces the paper's iteration counts.
+        mode: ``"accelerated"`` (default: ``alpha``, ``anderson`` and ``stopping`` as
+            given) or ``"paper"`` (α = 1, no acceleration, relative-change test).
+        rtol: Tolerance of the stopping test; default 1e-6, or 1e-5 in paper mode.
         max_iter: Maximum number of iterations (≥ 1).
+        alpha: Over-relaxation α ∈ (0, 2); 1 is plain ADMM.
+        anderson: Anderson memory k ≥ 0; 0 switches acceleration off.
+        stopping: ``"kkt"`` or ``"change"`` (see the module docstring).
         penalty_tol: Eigenvalue tolerance of the r* estimate (``penalty="auto"``).
         petsc_options: Options of the step-1 solver, overriding MUMPS Cholesky
             (``{"pc_type": "lu"}``, ``{"mat_mumps_icntl_14": 50}``, ...).
         petsc_options_prefix: Options prefix of the step-1 KSP; a unique one by default.
 
     Raises:
-        ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0 or ``max_iter`` < 1.
+        ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
+            (0, 2), a negative Anderson memory, or an unknown mode or stopping test.
 
     The solver owns PETSc objects; call :meth:`destroy` (or use it as a context
     manager) to free them deterministically.
@@ -166,27 +213,49 @@ class ADMMSolver:
         problem: ContactProblem,
         *,
         penalty: float | str = "auto",
-        rtol: float = DEFAULT_RTOL,
+        mode: str = "accelerated",
+        rtol: float | None = None,
         max_iter: int = 1000,
+        alpha: float = DEFAULT_ALPHA,
+        anderson: int = DEFAULT_ANDERSON,
+        stopping: str = "kkt",
         penalty_tol: float = DEFAULT_PENALTY_TOL,
         petsc_options: Mapping[str, Any] | None = None,
         petsc_options_prefix: str | None = None,
     ):
         if not isinstance(problem, ContactProblem):
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
+        if mode == "paper":
+            alpha, anderson, stopping = 1.0, 0, "change"
+            rtol = PAPER_RTOL if rtol is None else rtol
+        elif mode != "accelerated":
+            raise ValueError(f"mode must be 'accelerated' or 'paper', got {mode!r}.")
+        rtol = DEFAULT_RTOL if rtol is None else float(rtol)
+        if not (math.isfinite(rtol) and rtol > 0.0):
+            raise ValueError(f"rtol must be a positive finite number, got {rtol!r}.")
         if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer):
             raise TypeError(f"max_iter must be an int, got {max_iter!r}.")
         if max_iter < 1:
             raise ValueError(f"max_iter must be at least 1, got {max_iter}.")
-        rtol = float(rtol)
-        if not (math.isfinite(rtol) and rtol > 0.0):
-            raise ValueError(f"rtol must be a positive finite number, got {rtol!r}.")
+        alpha = float(alpha)
+        if not 0.0 < alpha < 2.0:
+            raise ValueError(f"alpha (over-relaxation) must lie in (0, 2), got {alpha}.")
+        if isinstance(anderson, bool) or not isinstance(anderson, int | np.integer):
+            raise TypeError(f"anderson (memory) must be an int, got {anderson!r}.")
+        if anderson < 0:
+            raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
+        if stopping not in _STOPPING:
+            raise ValueError(f"stopping must be one of {_STOPPING}, got {stopping!r}.")
         auto = isinstance(penalty, str) and penalty == "auto"
         if not auto:
             penalty = _check_penalty(penalty)
         self.problem = problem
+        self.mode = mode
         self.rtol = rtol
         self.max_iter = int(max_iter)
+        self.alpha = alpha
+        self.anderson = int(anderson)
+        self.stopping = stopping
         self.prefix = petsc_options_prefix or unique_prefix("admm_")
         self.operator = PenalisedOperator(problem, self.prefix, petsc_options)
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
@@ -222,9 +291,21 @@ class ADMMSolver:
         self.operator.set_penalty(_check_penalty(r))
 
     @property
-    def ksp(self):
+    def ksp(self) -> PETSc.KSP:
         """The step-1 KSP (factorised A + rNᵀMN)."""
         return self.operator.ksp
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The settings that define the iteration."""
+        return {
+            "mode": self.mode,
+            "alpha": self.alpha,
+            "anderson": self.anderson,
+            "stopping": self.stopping,
+            "rtol": self.rtol,
+            "max_iter": self.max_iter,
+        }
 
     # ------------------------------------------------------------------ solve
     def solve(self) -> ADMMResult:
@@ -240,9 +321,17 @@ class ADMMSolver:
         """
         problem = self.problem
         c = problem.contact
-        r = self.penalty
+        r, alpha = self.penalty, self.alpha
         g = c.gap
+        m = g.size
         t_start = time.perf_counter()
+        mass = c.mass
+        free_sq = np.einsum("ij,ij->i", c.free_normals, c.free_normals)
+        # W-norm of z = (p, λ): p weighted by M, λ by M/r² (both in displacement units)
+        weights = np.concatenate([mass, mass / r**2])
+        wnorm = AndersonMixer(1, weights, problem.comm).norm
+        mixer = AndersonMixer(self.anderson, weights, problem.comm) if self.anderson else None
+        load_norm = problem.load_norm
 
         u = fem.Function(problem.V, name="displacement")
         x = u.x.petsc_vec
@@ -252,56 +341,109 @@ class ADMMSolver:
         x_old.set(0.0)
         problem.assemble_rhs(r, b0)
 
-        p = np.minimum(0.0, g)
-        lam = np.zeros_like(g)
-        history: dict[str, list[float]] = {"du": [], "dp": [], "primal": [], "active": []}
+        z = np.concatenate([np.minimum(0.0, g), np.zeros(m)])  # state (p, λ)
+        p_prev = z[:m].copy()
+        keys = (
+            "du",
+            "dp",
+            "fpr",
+            "feasibility",
+            "complementarity",
+            "equilibrium",
+            "active",
+            "accelerated",
+        )
+        history: dict[str, list[float]] = {key: [] for key in keys}
         converged = False
         iterations = 0
-        logger.info(
-            "ADMM: m = %d contact nodes, r = %.6g, rtol = %.1e, prefix '%s'",
-            c.num_global,
-            r,
-            self.rtol,
-            self.prefix,
-        )
+        accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
+        proposal = False  # whether z is an Anderson extrapolation
+        lam = z[m:]
+        logger.info("ADMM: m = %d contact nodes, r = %.6g, %s", c.num_global, r, self.settings)
         try:
             with Timer("admm_dolfinx: iterations"):
                 t0 = time.perf_counter()
                 for k in range(1, self.max_iter + 1):
                     iterations = k
+                    p_in, lam_in = z[:m], z[m:]
+                    # step 1: (A + rK) u = f + NᵀM(r p − λ)
                     b0.copy(b)
-                    problem.add_normal_force(b, r * p - lam)
+                    problem.add_normal_force(b, r * p_in - lam_in)
                     self.operator.solve(b, x)
                     nu = problem.apply_normal(x)
+                    # steps 2-3 with over-relaxation
+                    xi = alpha * nu + (1.0 - alpha) * p_in
                     with np.errstate(invalid="ignore"):
-                        p_new = np.minimum(nu + lam / r, g)
-                        lam = np.maximum(lam + r * (nu - g), 0.0)
+                        p = np.minimum(xi + lam_in / r, g)
+                        lam = np.maximum(lam_in + r * (xi - g), 0.0)
+                    Tz = np.concatenate([p, lam])
 
+                    # residuals of (u, λ⁺) and of the fixed-point map
+                    fpr = _ratio(wnorm(Tz - z), wnorm(Tz))
                     x_old.axpy(-1.0, x)
-                    du = _relative_change(x_old.norm(), x.norm())
-                    dp = _relative_change(
-                        problem.global_norm(p_new - p), problem.global_norm(p_new)
+                    du = _ratio(x_old.norm(), x.norm())
+                    x.copy(x_old)
+                    dp = _ratio(problem.global_norm(p - p_prev), problem.global_norm(p))
+                    p_prev = p
+                    u_scale = x.norm(PETSc.NormType.NORM_INFINITY)
+                    lam_scale = problem.global_norm(lam, np.inf)
+                    finite = np.isfinite(g)
+                    slack = np.where(finite, g - nu, 0.0)
+                    feas = _ratio(problem.global_norm(np.maximum(-slack, 0.0), np.inf), u_scale)
+                    comp = _ratio(
+                        problem.global_norm(np.where(lam > 0, lam * np.abs(slack), 0.0), np.inf),
+                        lam_scale * u_scale,
                     )
-                    primal = _relative_change(
-                        problem.global_norm(nu - p_new), problem.global_norm(nu)
+                    # A u − f + NᵀMλ⁺ = NᵀM d at the contact nodes, Dirichlet rows excluded
+                    d = r * (p_in - nu) + (lam - lam_in)
+                    force = np.sqrt(free_sq) * mass
+                    eq = _ratio(
+                        problem.global_norm(force * d),
+                        max(load_norm, problem.global_norm(force * lam)),
                     )
                     active = int(problem.comm.allreduce(int(np.count_nonzero(lam > 0.0))))
-                    p = p_new
-                    x.copy(x_old)
-                    for key, val in zip(history, (du, dp, primal, active), strict=True):
+                    res = wnorm(Tz - z)
+
+                    # safeguard: an extrapolated state must lower the fixed-point residual
+                    rejected = proposal and accepted is not None and res >= accepted[1]
+                    for key, val in zip(
+                        keys,
+                        (du, dp, fpr, feas, comp, eq, active, -1 if rejected else int(proposal)),
+                        strict=True,
+                    ):
                         history[key].append(val)
                     logger.info(
-                        "ADMM %4d: du %.3e  dp %.3e  |Nu-p| %.3e  active %d  r %.4g",
+                        "ADMM %4d: fpr %.2e feas %.2e comp %.2e eq %.2e du %.2e dp %.2e "
+                        "active %d%s",
                         k,
+                        fpr,
+                        feas,
+                        comp,
+                        eq,
                         du,
                         dp,
-                        primal,
                         active,
-                        r,
+                        " (Anderson step rejected)" if rejected else "",
                     )
-                    if du <= self.rtol and dp <= self.rtol:
+                    if self.stopping == "change":
+                        done = du <= self.rtol and dp <= self.rtol
+                    else:
+                        done = max(fpr, feas, comp, eq) <= self.rtol
+                    if done:
                         converged = True
                         break
+                    if rejected:
+                        z, proposal = accepted[0].copy(), False  # the plain step instead
+                        continue
+                    accepted = (Tz, res)
+                    proposal = False
+                    z = Tz
+                    if mixer is not None:
+                        candidate = mixer.update(np.concatenate([p_in, lam_in]), Tz)
+                        if candidate is not None:
+                            candidate[:m] = np.minimum(candidate[:m], g)
+                            candidate[m:] = np.maximum(candidate[m:], 0.0)
+                            z, proposal = candidate, True
                 t_iter = time.perf_counter() - t0
             u.x.scatter_forward()
 
@@ -341,6 +483,7 @@ class ADMMSolver:
             multiplier=lam,
             num_active=history["active"][-1],
             num_contact_nodes=c.num_global,
+            settings=self.settings,
             extra={
                 "max_pressure": problem.global_norm(lam, np.inf),
                 "penalty_estimate": self.penalty_estimate.as_dict()
@@ -350,11 +493,12 @@ class ADMMSolver:
         )
         if not converged:
             raise ADMMConvergenceError(
-                f"ADMM did not converge in {self.max_iter} iterations at r = {r:.6g}: "
-                f"relative changes du = {history['du'][-1]:.2e}, dp = {history['dp'][-1]:.2e} "
-                f"> rtol = {self.rtol:.1e}. Increase max_iter, or use penalty='auto' if r "
-                "was set by hand (a poor r slows ADMM down). The partial result is "
-                "attached as `err.result`.",
+                f"ADMM did not converge in {self.max_iter} iterations at r = {r:.6g} "
+                f"({self.stopping!r} test at rtol = {self.rtol:.1e}; last residuals: fpr "
+                f"{history['fpr'][-1]:.2e}, equilibrium {history['equilibrium'][-1]:.2e}, "
+                f"du {history['du'][-1]:.2e}, dp {history['dp'][-1]:.2e}). Increase "
+                "max_iter, or use penalty='auto' if r was set by hand (a poor r slows "
+                "ADMM down). The partial result is attached as `err.result`.",
                 result,
             )
         logger.info("%s", result.summary())

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from admm_dolfinx.admm import DEFAULT_RTOL, ADMMConvergenceError, ADMMSolver
+from admm_dolfinx.admm import ADMMConvergenceError, ADMMSolver
 from admm_dolfinx.output import write_json
 from admm_dolfinx.report import result_summary, write_scene_outputs
 from admm_dolfinx.reproduce import TABLES, run_table
@@ -57,6 +57,7 @@ def cmd_run(args) -> int:
         with ADMMSolver(
             problem,
             penalty=args.penalty,
+            mode=args.mode,
             rtol=args.rtol,
             max_iter=args.max_iter,
             petsc_options_prefix="run_",
@@ -67,7 +68,7 @@ def cmd_run(args) -> int:
         _say(f"error: {err}")
     _say(result.summary())
     summary = result_summary(scene, problem, result) | {
-        "rtol": args.rtol,
+        "settings": result.settings,
         "wall_time": time.perf_counter() - t0,
     }
     if args.json:
@@ -76,7 +77,12 @@ def cmd_run(args) -> int:
     if args.out:
         coordinate = "angle" if scene.name == "example2" else "x"
         write_scene_outputs(
-            args.out, scene, problem, result, coordinate=coordinate, extra={"rtol": args.rtol}
+            args.out,
+            scene,
+            problem,
+            result,
+            coordinate=coordinate,
+            extra={"settings": result.settings},
         )
         _say(f"wrote {args.out}/")
     problem.destroy()
@@ -133,10 +139,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--penalty", type=_penalty, default="auto", help="penalty r, or 'auto' for r* (default)"
     )
     run.add_argument(
-        "--rtol",
-        type=float,
-        default=DEFAULT_RTOL,
-        help="relative-change tolerance (default %(default)g)",
+        "--mode",
+        choices=["accelerated", "paper"],
+        default="accelerated",
+        help="accelerated ADMM with the KKT stopping test (default), or the paper's "
+        "algorithm and relative-change test",
+    )
+    run.add_argument(
+        "--rtol", type=float, default=None, help="stopping tolerance (default: the mode's)"
     )
     run.add_argument("--max-iter", type=int, default=1000, help="iteration cap")
     run.add_argument("--json", help="write a JSON summary to this file")

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
+from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
 if TYPE_CHECKING:
@@ -33,7 +34,7 @@ class KKTResiduals:
         primal_feasibility: max_j (N u − g)_j⁺ / ‖u‖_∞ (penetration).
         dual_feasibility: max_j (−λ_j)⁺ / ‖λ‖_∞ (adhesion, impossible here).
         complementarity: max_j λ_j |g_j − (N u)_j| / (‖λ‖_∞ ‖u‖_∞).
-        equilibrium: ‖A u − f + NᵀMλ‖₂ / max(‖A u‖₂, ‖f‖₂, ‖NᵀMλ‖₂) on free dofs.
+        equilibrium: ‖A u − f + NᵀMλ‖₂ / max(‖A u‖₂, ‖f‖₂, ‖NᵀMλ‖₂), free dofs only.
     """
 
     primal_feasibility: float
@@ -85,10 +86,12 @@ def compute_kkt_residuals(
     force = problem.create_vector()
     try:
         problem.A.mult(u, Au)
+        fem_petsc.set_bc(Au, problem.bcs, alpha=0.0)  # Dirichlet rows are not equations
         force.set(0.0)
         problem.add_normal_force(force, lam)
-        scale = max(Au.norm(), problem.load_vector().norm(), force.norm())
+        scale = max(Au.norm(), problem.load_norm, force.norm())
         Au.axpy(-1.0, problem.load_vector())
+        fem_petsc.set_bc(Au, problem.bcs, alpha=0.0)
         Au.axpy(1.0, force)
         equilibrium = _ratio(Au.norm(), scale)
     finally:

@@ -200,6 +200,11 @@ class ContactProblem:
         fem_petsc.apply_lifting(self._lift_k, [self._k], bcs=[bcs])
         self._lift_k.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         fem_petsc.set_bc(self._lift_k, bcs, alpha=0.0)
+        free_load = self._load.copy()
+        fem_petsc.set_bc(free_load, bcs, alpha=0.0)
+        #: ‖f‖₂ over the free dofs (the scale of forces in the KKT residuals).
+        self.load_norm = free_load.norm()
+        free_load.destroy()
         #: Wall-clock seconds spent building the operators (``assembly``).
         self.timings = {"assembly": time.perf_counter() - t_start}
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from admm_dolfinx.admm import DEFAULT_RTOL, ADMMConvergenceError, ADMMSolver
+from admm_dolfinx.admm import ADMMConvergenceError, ADMMSolver
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["PenaltySweep", "paper_penalty_grid", "sample_penalty"]
@@ -77,20 +77,25 @@ def sample_penalty(
     problem: ContactProblem,
     r_values: Sequence[float] | npt.ArrayLike,
     *,
-    rtol: float = DEFAULT_RTOL,
+    mode: str = "paper",
+    rtol: float | None = None,
     max_iter: int = 1000,
     petsc_options: dict | None = None,
     progress: Callable[[int, int, float, int], None] | None = None,
+    **solver_options,
 ) -> PenaltySweep:
     """Run ADMM at every r and record the iteration counts; collective.
 
     Args:
         problem: The contact problem.
         r_values: Penalties to sample.
-        rtol: ADMM stopping tolerance.
+        mode: ADMM mode; ``"paper"`` (the default) is the paper's algorithm and test.
+        rtol: ADMM stopping tolerance (the mode's default if None).
         max_iter: ADMM iteration cap per sample.
         petsc_options: Options of the step-1 solver.
         progress: Called as ``progress(k, n, r, iterations)`` after each sample.
+        **solver_options: More :class:`~admm_dolfinx.ADMMSolver` options (``alpha``,
+            ``anderson``, ``stopping``).
 
     Returns:
         The sweep.
@@ -102,9 +107,11 @@ def sample_penalty(
     with ADMMSolver(
         problem,
         penalty=float(r_values[0]),
+        mode=mode,
         rtol=rtol,
         max_iter=max_iter,
         petsc_options=petsc_options,
+        **solver_options,
     ) as solver:
         for k, r in enumerate(r_values):
             solver.set_penalty(float(r))
