@@ -2,8 +2,9 @@
 
 Every table runs the paper's ADMM (``mode="paper"``: Algorithm 2, no acceleration, the
 relative-change test at ``rtol = 1e-5``) on our gmsh meshes; r* comes from
-:func:`~admm_dolfinx.estimate_penalty` and r̄ from :func:`~admm_dolfinx.sweep.sample_penalty` on the paper's grid of 200
-points in (0.1, 10)·E. Times are wall-clock seconds on this machine; the paper's are
+:func:`~admm_dolfinx.estimate_penalty` and r̄ from
+:func:`~admm_dolfinx.sweep.sample_penalty` on the paper's grid of 200 points in
+(0.1, 10)·E. Times are wall-clock seconds on this machine; the paper's are
 MATLAB CPU seconds on its machine and are shown for reference only.
 """
 
