@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -74,10 +74,12 @@ PAPER_RTOL = 1e-5
 #: Default tolerance of the KKT / fixed-point-residual test.
 DEFAULT_RTOL = 1e-6
 #: Defaults of the accelerated mode, chosen by ``benchmarks/acceleration.py``.
-DEFAULT_ALPHA = 1.0
+DEFAULT_ALPHA = 1.6
 DEFAULT_ANDERSON = 5
 
 _STOPPING = ("kkt", "change")
+#: A solve that needs this many iterations or more says so in ``result.extra["warning"]``.
+SLOW_ITERATIONS = 300
 
 
 @dataclass
@@ -105,7 +107,9 @@ class ADMMResult:
         num_active: Global number of contact nodes with λ > 0.
         num_contact_nodes: Global number m of contact nodes.
         settings: The solver settings (mode, alpha, anderson, stopping, rtol).
-        extra: ``max_pressure`` and the ``penalty_estimate`` (as a dict) if any.
+        extra: ``max_pressure``, the ``penalty_estimate`` (as a dict) if any, and a
+            ``warning`` (non-empty when the solve was slow: ≥ 300 iterations, with the
+            observed contraction rate and the likely cause).
     """
 
     u: fem.Function
@@ -146,6 +150,8 @@ class ADMMResult:
             f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}",
             "  time [s]: " + ", ".join(f"{name} {value:.3f}" for name, value in t.items()),
         ]
+        if self.extra.get("warning"):
+            lines.append(f"  WARNING: {self.extra['warning']}")
         return "\n".join(lines)
 
 
@@ -308,8 +314,17 @@ class ADMMSolver:
         }
 
     # ------------------------------------------------------------------ solve
-    def solve(self) -> ADMMResult:
+    def solve(
+        self, callback: Callable[[int, PETSc.Vec, np.ndarray], bool] | None = None
+    ) -> ADMMResult:
         """Run ADMM from u⁰ = 0, λ⁰ = 0, p⁰ = min(0, g).
+
+        Args:
+            callback: Called after every iteration as ``callback(k, u, λ)`` (collective;
+                u is the displacement vector, λ the local multiplier). If it returns
+                True the iteration stops there and the result is returned with
+                ``settings["stopped_by"] == "callback"`` (benchmarks use this to stop
+                at a given error against a reference).
 
         Returns:
             The converged result.
@@ -355,6 +370,7 @@ class ADMMSolver:
         )
         history: dict[str, list[float]] = {key: [] for key in keys}
         converged = False
+        stopped_by = "test"
         iterations = 0
         accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
         proposal = False  # whether z is an Anderson extrapolation
@@ -429,6 +445,8 @@ class ADMMSolver:
                         done = du <= self.rtol and dp <= self.rtol
                     else:
                         done = max(fpr, feas, comp, eq) <= self.rtol
+                    if callback is not None and callback(k, x, lam):
+                        done, stopped_by = True, "callback"
                     if done:
                         converged = True
                         break
@@ -483,7 +501,7 @@ class ADMMSolver:
             multiplier=lam,
             num_active=history["active"][-1],
             num_contact_nodes=c.num_global,
-            settings=self.settings,
+            settings=self.settings | {"stopped_by": stopped_by},
             extra={
                 "max_pressure": problem.global_norm(lam, np.inf),
                 "penalty_estimate": self.penalty_estimate.as_dict()
@@ -491,6 +509,9 @@ class ADMMSolver:
                 else None,
             },
         )
+        result.extra["warning"] = self._slow_convergence_warning(history, converged)
+        if result.extra["warning"]:
+            logger.warning("%s", result.extra["warning"])
         if not converged:
             raise ADMMConvergenceError(
                 f"ADMM did not converge in {self.max_iter} iterations at r = {r:.6g} "
@@ -503,6 +524,26 @@ class ADMMSolver:
             )
         logger.info("%s", result.summary())
         return result
+
+    def _slow_convergence_warning(self, history: dict, converged: bool) -> str:
+        """A loud note when the iteration was slow, with its observed contraction."""
+        n = len(history["fpr"])
+        if n < SLOW_ITERATIONS:
+            return ""
+        tail = np.asarray(history["fpr"][-20:], dtype=float)
+        tail = tail[tail > 0]
+        rate = float(np.exp(np.mean(np.diff(np.log(tail))))) if tail.size > 2 else float("nan")
+        origin = "r*" if self.penalty_estimate else "given by hand"
+        return (
+            f"ADMM {'needed' if converged else 'ran'} {n} iterations (contraction of the "
+            f"fixed-point residual ≈ {rate:.4f} per iteration) at r = {self.penalty:.6g} "
+            f"({origin}). This is slow: "
+            + (
+                "use penalty='auto' (r*), which balances the extreme modes."
+                if not self.penalty_estimate
+                else "the contact zone may be badly resolved, or try anderson > 0."
+            )
+        )
 
     # ------------------------------------------------------------------ lifetime
     def destroy(self) -> None:

@@ -83,10 +83,11 @@ def _land():
 def solve_snes_vi(
     problem: ContactProblem,
     *,
-    tol: float = 1e-12,
+    tol: float = 1e-10,
     max_iter: int = 200,
     petsc_options: Mapping[str, Any] | None = None,
     petsc_options_prefix: str | None = None,
+    initial_guess: PETSc.Vec | None = None,
 ) -> BaselineResult:
     """Solve the contact QP with PETSc SNES ``vinewtonrsls`` (active-set Newton) + MUMPS.
 
@@ -97,6 +98,8 @@ def solve_snes_vi(
         max_iter: Maximum Newton iterations.
         petsc_options: Extra SNES/KSP options under the prefix.
         petsc_options_prefix: Options prefix; unique by default.
+        initial_guess: Start from this displacement (e.g. an ADMM solution: Newton
+            then only confirms its active set); zero by default.
 
     Returns:
         The reference solution.
@@ -139,7 +142,10 @@ def solve_snes_vi(
             **dict(petsc_options or {}),
         }
         apply_options(snes, prefix, options)
-        x.set(0.0)
+        if initial_guess is None:
+            x.set(0.0)
+        else:
+            initial_guess.copy(x)
         t0 = time.perf_counter()
         snes.solve(None, x)
         elapsed = time.perf_counter() - t0

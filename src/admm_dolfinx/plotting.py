@@ -242,7 +242,8 @@ def plot_iterations_vs_penalty(
         ax.plot(r, its, label=label, linewidth=1.2)
     for label, r, its in marks:
         ax.plot([r], [its], marker="*", markersize=11, linestyle="none", label=label)
-    ax.set_xlabel("penalty r")
+    ax.set_xscale("log")
+    ax.set_xlabel("penalty r (log scale)")
     ax.set_ylabel("ADMM iterations")
     ax.set_title(title)
     ax.grid(True, alpha=0.3)

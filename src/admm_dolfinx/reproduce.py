@@ -272,9 +272,23 @@ def table3(progress: Progress, quick: bool = False) -> Table:
             }
         )
         problem.destroy()
+    # The paper makes A invertible with "a small positive constant on the vertical
+    # components of Γ_D": measure how its r* then depends on that constant.
+    springs = []
+    for k in (2.0, 0.1):
+        progress(f"table3: r* with a spring of stiffness {k} on the symmetry line")
+        problem = example2(level=0, spring=k).problem()
+        with ADMMSolver(problem, mode="paper", max_iter=5000) as solver:
+            res = solver.solve()
+        springs.append(f"k = {k}: r* = {res.penalty:.4g}, {res.iterations} iterations")
+        problem.destroy()
     table.notes += [
-        "Our r* ignores the free vertical translation (λ = ∞, deflated); the paper "
-        "instead adds a small spring to make A invertible, which changes λ_max.",
+        "Our r* deflates the free vertical translation (λ = ∞), so it needs no spring. "
+        "The paper adds a spring of unstated stiffness k to the vertical motion of Γ_D "
+        "instead; its r* then falls like √k. Measured on the m_c = 35 mesh: "
+        + "; ".join(springs)
+        + ". The paper's r* = 137 corresponds to k ≈ 2, and a smaller r* needs more "
+        "iterations here: the gap to the paper's counts is this choice, not the ADMM.",
         "Geometry: R = 8 quarter cylinder as read in the README (the paper's text is "
         "not self-consistent).",
     ]

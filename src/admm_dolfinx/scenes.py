@@ -145,6 +145,7 @@ def example2(
     nu: float = 0.3,
     radius: float = 8.0,
     load: float = 1600.0,
+    spring: float = 0.0,
 ) -> Scene:
     """Example 2 of the paper: the Hertz problem, a cylinder on a rigid foundation.
 
@@ -166,6 +167,9 @@ def example2(
         nu: Poisson ratio.
         radius: R.
         load: Total downward force on the quarter's top side.
+        spring: Stiffness per unit length of springs on the vertical motion of the
+            symmetry line (the paper's "small positive constant on the vertical
+            components of Γ_D"); 0 (the default) leaves the body floating.
 
     Returns:
         The scene.
@@ -182,6 +186,9 @@ def example2(
     t = fem.Constant(msh, np.array([0.0, -load / radius]))
     axis = fem.locate_dofs_topological(V.sub(0), 1, facet_tags.find(tags["axis"]))
     bcs = [fem.dirichletbc(0.0, axis, V.sub(0))]
+    a = material.bilinear_form(u, v)
+    if spring > 0.0:
+        a = a + spring * u[1] * v[1] * ds(tags["axis"])
     return Scene(
         name="example2",
         mesh=msh,
@@ -189,13 +196,13 @@ def example2(
         markers=tags,
         material=material,
         V=V,
-        a=material.bilinear_form(u, v),
+        a=a,
         L=ufl.dot(t, v) * ds(tags["top"]),
         bcs=bcs,
         contact_marker=tags["arc"],
         obstacle=Plane(point=(0.0, 0.0), normal=(0.0, 1.0)),
         h=h_contact,
-        info={"E": E, "nu": nu, "radius": radius, "load": load, "level": level},
+        info={"E": E, "nu": nu, "radius": radius, "load": load, "level": level, "spring": spring},
     )
 
 
@@ -206,6 +213,8 @@ def example3(
     E: float = 1e6,
     nu: float = 0.45,
     displacement: float = 0.2,
+    h_bottom: float = 0.3,
+    h_top: float = 0.28,
 ) -> Scene:
     """Example 3 of the paper: a block pressed onto a rigid half-ball.
 
@@ -222,12 +231,14 @@ def example3(
         E: Young's modulus.
         nu: Poisson ratio.
         displacement: Downward displacement of the top face.
+        h_bottom: Element size of the level-0 mesh on Γ_C.
+        h_top: Element size of the level-0 mesh on the top face.
 
     Returns:
         The scene.
     """
     tags = {"bottom": 3, "top": 1, "sides": 4}
-    data = box(comm, (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5), 0.3, 0.28, level, tags)
+    data = box(comm, (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5), h_bottom, h_top, level, tags)
     msh, facet_tags = data.mesh, data.facet_tags
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
@@ -247,7 +258,7 @@ def example3(
         bcs=bcs,
         contact_marker=tags["bottom"],
         obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
-        h=0.3 / 2**level,
+        h=h_bottom / 2**level,
         info={"E": E, "nu": nu, "displacement": displacement, "level": level},
     )
 
