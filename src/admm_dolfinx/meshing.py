@@ -206,7 +206,13 @@ def tag_boundary(
 
 
 def quarter_disc(
-    comm: MPI.Comm, radius: float, h: float, h_contact: float, tags: dict[str, int]
+    comm: MPI.Comm,
+    radius: float,
+    h: float,
+    h_contact: float,
+    tags: dict[str, int],
+    *,
+    refine_radius: float | None = None,
 ) -> MeshData:
     """The lower-right quarter of a disc of radius R centred at (0, R).
 
@@ -219,6 +225,9 @@ def quarter_disc(
         h: Element size away from the arc.
         h_contact: Element size on the arc.
         tags: Tags of ``"axis"``, ``"top"``, ``"arc"``.
+        refine_radius: If given, ``h_contact`` applies only within this distance of the
+            lowest point (0, 0), where a Hertz contact zone forms, growing to ``h`` at
+            three times the distance; otherwise along the whole arc.
 
     Returns:
         Mesh data.
@@ -244,14 +253,23 @@ def quarter_disc(
         arc = gmsh.model.getEntitiesForPhysicalGroup(1, tags["arc"])
         field = gmsh.model.mesh.field
         dist = field.add("Distance")
-        field.setNumbers(dist, "CurvesList", list(arc))
-        field.setNumber(dist, "Sampling", 200)
         thr = field.add("Threshold")
+        if refine_radius is None:
+            field.setNumbers(dist, "CurvesList", list(arc))
+            field.setNumber(dist, "Sampling", 200)
+            field.setNumber(thr, "DistMin", 0.0)
+            field.setNumber(thr, "DistMax", 0.5 * R)
+        else:
+            lowest = [
+                tag for _, tag in gmsh.model.getEntities(0)
+                if np.linalg.norm(gmsh.model.getValue(0, tag, [])) < 1e-8 * R
+            ]
+            field.setNumbers(dist, "PointsList", lowest)
+            field.setNumber(thr, "DistMin", refine_radius)
+            field.setNumber(thr, "DistMax", 3.0 * refine_radius + 4.0 * h)
         field.setNumber(thr, "InField", dist)
         field.setNumber(thr, "SizeMin", h_contact)
         field.setNumber(thr, "SizeMax", h)
-        field.setNumber(thr, "DistMin", 0.0)
-        field.setNumber(thr, "DistMax", 0.5 * R)
         field.setAsBackgroundMesh(thr)
         gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
         gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)

@@ -20,7 +20,7 @@ from admm_dolfinx.meshing import box, quarter_disc, rectangle, structured_rectan
 from admm_dolfinx.obstacles import Ball, Obstacle, Plane
 from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["SCENES", "Scene", "example1", "example2", "example3"]
+__all__ = ["SCENES", "Scene", "example1", "example2", "example3", "hertz", "hertz_solution"]
 
 
 @dataclass
@@ -263,5 +263,83 @@ def example3(
     )
 
 
+def hertz_solution(load: float, radius: float, E: float, nu: float) -> tuple[float, float]:
+    """Hertz's plane-strain solution for a cylinder on a rigid plane.
+
+    A cylinder of radius R pressed by a force P per unit length onto a rigid flat
+    touches it over |x| ≤ a with the pressure p(x) = p0 sqrt(1 − x²/a²), where
+    a = sqrt(4PR / (π E*)), p0 = 2P / (π a) and E* = E / (1 − ν²).
+
+    Args:
+        load: P, force per unit length on the whole cylinder.
+        radius: R.
+        E: Young's modulus.
+        nu: Poisson ratio.
+
+    Returns:
+        (a, p0).
+    """
+    e_star = E / (1.0 - nu**2)
+    a = float(np.sqrt(4.0 * load * radius / (np.pi * e_star)))
+    return a, 2.0 * load / (np.pi * a)
+
+
+def hertz(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 2000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    half_width: float = 0.6,
+) -> Scene:
+    """A cylinder on a rigid plane under a small load: Hertz's solution applies.
+
+    The quarter cylinder of :func:`example2` with the load chosen so that the Hertz
+    contact half-width is ``half_width`` (≤ R/10: small strains), and a mesh refined
+    around the contact point: the element size there is a/4 / 2^level.
+
+    Args:
+        comm: Communicator.
+        level: Refinement level (each halves the contact element size).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        radius: R.
+        half_width: The Hertz half-width a that the load is chosen to produce.
+
+    Returns:
+        The scene; ``info`` holds the analytic ``a`` and ``p0``.
+    """
+    e_star = E / (1.0 - nu**2)
+    total = half_width**2 * np.pi * e_star / (4.0 * radius)  # P on the whole cylinder
+    h_contact = half_width / 4.0 / 2**level
+    tags = {"axis": 1, "top": 2, "arc": 3}
+    data = quarter_disc(comm, radius, 0.6, h_contact, tags, refine_radius=1.5 * half_width)
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    t = fem.Constant(msh, np.array([0.0, -0.5 * total / radius]))  # half on the quarter
+    axis = fem.locate_dofs_topological(V.sub(0), 1, facet_tags.find(tags["axis"]))
+    a_exact, p0 = hertz_solution(total, radius, E, nu)
+    return Scene(
+        name="hertz",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=[fem.dirichletbc(0.0, axis, V.sub(0))],
+        contact_marker=tags["arc"],
+        obstacle=Plane(point=(0.0, 0.0), normal=(0.0, 1.0)),
+        h=h_contact,
+        info={"E": E, "nu": nu, "radius": radius, "load": total, "level": level,
+              "a": a_exact, "p0": p0},
+    )
+
+
 #: Scene builders by name.
-SCENES = {"example1": example1, "example2": example2, "example3": example3}
+SCENES = {"example1": example1, "example2": example2, "example3": example3, "hertz": hertz}
