@@ -52,7 +52,10 @@ def reference(problem, axis_aligned):
         tight = solver.solve()
     if not axis_aligned:
         return tight.u.x.petsc_vec.copy(), f"ADMM rtol 1e-12 (KKT {tight.kkt.max():.1e})"
-    ref = solve_snes_vi(problem, initial_guess=tight.u.x.petsc_vec)
+    try:
+        ref = solve_snes_vi(problem, initial_guess=tight.u.x.petsc_vec)
+    except RuntimeError as err:  # SNES stalled at round-off: keep the tight ADMM answer
+        return tight.u.x.petsc_vec.copy(), f"ADMM rtol 1e-12 (SNES VI: {err})"
     return ref.u.x.petsc_vec.copy(), f"SNES VI ({ref.iterations} Newton steps)"
 
 

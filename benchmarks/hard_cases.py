@@ -1,0 +1,78 @@
+"""Iteration counts of the hard-case suite (the README's stability table).
+
+    python benchmarks/hard_cases.py           # the benchmark sizes
+    python benchmarks/hard_cases.py --small   # the sizes the tests use
+
+For every case of :mod:`admm_dolfinx.hard_cases`: r*, iterations of the accelerated
+default and of the paper's algorithm, the largest relative KKT residual of each, and
+whether anything was NaN. Writes out_benchmarks/hard_cases.csv.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from admm_dolfinx import ADMMConvergenceError, ADMMSolver
+from admm_dolfinx.hard_cases import CASES, build_case
+
+
+def run(problem, **options):
+    try:
+        with ADMMSolver(problem, max_iter=5000, **options) as solver:
+            result = solver.solve()
+        status = "converged"
+    except ADMMConvergenceError as err:
+        result, status = err.result, "NOT converged"
+    finite = bool(np.all(np.isfinite(result.u.x.array)))
+    return result, status if finite else "NaN"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--small", action="store_true")
+    parser.add_argument("--out", default="out_benchmarks")
+    args = parser.parse_args()
+    comm = MPI.COMM_WORLD
+    rows = []
+    for name in CASES:
+        scene = build_case(name, comm, small=args.small)
+        problem = scene.problem()
+        fast, s_fast = run(problem)
+        paper, s_paper = run(problem, mode="paper", penalty=fast.penalty)
+        rows.append(
+            {
+                "case": name,
+                "nodes": scene.num_nodes,
+                "m": problem.num_contact_nodes,
+                "r*": f"{fast.penalty:.4g}",
+                "active": fast.num_active,
+                "iterations (default)": fast.iterations,
+                "KKT (default)": f"{fast.kkt.max():.1e}",
+                "status (default)": s_fast,
+                "iterations (paper)": paper.iterations,
+                "KKT (paper)": f"{paper.kkt.max():.1e}",
+                "status (paper)": s_paper,
+            }
+        )
+        problem.destroy()
+    if comm.rank == 0:
+        keys = list(rows[0])
+        print("| " + " | ".join(keys) + " |")
+        print("|" + "---|" * len(keys))
+        for row in rows:
+            print("| " + " | ".join(str(row[k]) for k in keys) + " |")
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        with (out / "hard_cases.csv").open("w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows(rows)
+
+
+if __name__ == "__main__":
+    main()

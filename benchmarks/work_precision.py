@@ -1,0 +1,232 @@
+"""Work against precision: error in u against wall time for every solver of one QP.
+
+Solvers (all on the same discrete problem, serial):
+
+* ``ADMM accelerated``: the package default (r*, α = 1.6, Anderson 5, KKT test);
+* ``ADMM paper r*`` and ``ADMM paper r̄``: Algorithm 2 with the relative-change test;
+  r̄ is the best of 10 penalties log-spaced in [r*/10, 10 r*];
+* ``SNES VI``: PETSc's active-set Newton ``vinewtonrsls`` + MUMPS, from zero;
+* ``OSQP default``: OSQP on the extracted QP with its defaults and check_termination=1;
+* ``OSQP twin``: OSQP set up as an exact twin of our ADMM at r*: constraint rows scaled
+  by sqrt(M) so that its scalar ρ = r* is our r·M, α = 1, σ = 1e-12, no scaling, no
+  adaptive ρ, no polishing.
+
+Accuracy is matched by sweeping each solver over its own tolerance and measuring the
+error ‖u − u_ref‖/‖u_ref‖ against an overkill reference (SNES VI at tol 1e-11 started
+from a tight ADMM solution). Times include everything a user waits for after assembly:
+r* and the factorisation for ADMM, setup (KKT factorisation) for OSQP.
+
+    python benchmarks/work_precision.py            # 2D ≥ 100k dofs and 3D ≥ 200k dofs
+    python benchmarks/work_precision.py --quick    # small meshes
+
+Writes out_benchmarks/work_precision_<mesh>.csv and .png (log-log error vs time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from mpi4py import MPI
+
+import admm_dolfinx
+from admm_dolfinx.baselines import solve_snes_vi
+from admm_dolfinx.scenes import example1, example3
+from admm_dolfinx.sweep import sample_penalty
+
+TOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9)
+
+
+def petsc_to_scipy(mat):
+    indptr, indices, data = mat.getValuesCSR()
+    return sp.csr_matrix((data, indices, indptr), shape=mat.getSize())
+
+
+def extract_qp(problem):
+    """P, q, C, upper bound, free dofs and u_D of the QP on the free dofs (serial)."""
+    c = problem.contact
+    bs = problem.V.dofmap.index_map_bs
+    n = problem.A.getSize()[0]
+    fixed = np.zeros(n, dtype=bool)
+    for bc in problem.bcs:
+        fixed[bc.dof_indices()[0]] = True
+    free = np.flatnonzero(~fixed)
+    A = petsc_to_scipy(problem.A)
+    load = problem.load_vector().array_r.copy()
+    u_d = np.where(fixed, load, 0.0)
+    rows = np.repeat(np.arange(c.nodes.size), problem.gdim)
+    cols = (c.nodes[:, None] * bs + np.arange(problem.gdim)[None, :]).ravel()
+    N = sp.csr_matrix((c.normals.ravel(), (rows, cols)), shape=(c.nodes.size, n))
+    finite = np.isfinite(c.gap)
+    upper = np.where(finite, c.gap - N @ u_d, np.inf)
+    scale = np.sqrt(c.mass)
+    C = sp.diags(scale) @ N[:, free]
+    return A[free][:, free].tocsc(), -load[free], C.tocsc(), scale * upper, free, u_d
+
+
+def error_of(u, u_ref):
+    return float(np.linalg.norm(u - u_ref) / np.linalg.norm(u_ref))
+
+
+def admm_sweep(problem, u_ref, label, tols, **options):
+    points = []
+    with admm_dolfinx.ADMMSolver(problem, max_iter=20000, **options) as solver:
+        fixed = (solver.penalty_estimate.time if solver.penalty_estimate else 0.0) + (
+            solver.operator.timings["factorization"]
+        )
+        for tol in tols:
+            solver.rtol = tol
+            result = solver.solve()
+            points.append(
+                (
+                    label,
+                    tol,
+                    fixed + result.timings["iterations"],
+                    error_of(result.u.x.array, u_ref),
+                    result.iterations,
+                )
+            )
+    return points
+
+
+def osqp_sweep(qp, u_ref, label, settings, tols):
+    import osqp
+
+    P, q, C, upper, free, u_d = qp
+    points = []
+    for tol in tols:
+        solver = osqp.OSQP()
+        t0 = time.perf_counter()
+        solver.setup(
+            P=sp.triu(P).tocsc(),
+            q=q,
+            A=C,
+            l=np.full(C.shape[0], -np.inf),
+            u=upper,
+            verbose=False,
+            eps_abs=tol,
+            eps_rel=tol,
+            max_iter=200000,
+            **settings,
+        )
+        res = solver.solve()
+        elapsed = time.perf_counter() - t0
+        u = u_d.copy()
+        u[free] = res.x
+        points.append((label, tol, elapsed, error_of(u, u_ref), res.info.iter))
+    return points
+
+
+def bench(name, scene, out, osqp_ok=True):
+    problem = scene.problem()
+    dofs = problem.A.getSize()[0]
+    print(
+        f"\n## {name}: {scene.num_nodes} nodes, {dofs} dofs, m = {problem.num_contact_nodes}",
+        flush=True,
+    )
+    with admm_dolfinx.ADMMSolver(problem, rtol=1e-11, max_iter=20000) as solver:
+        tight = solver.solve()
+    ref = solve_snes_vi(problem, tol=1e-11, initial_guess=tight.u.x.petsc_vec)
+    u_ref = ref.u.x.array.copy()
+    r_star = tight.penalty
+    points = admm_sweep(problem, u_ref, "ADMM accelerated", TOLS)
+    points += admm_sweep(problem, u_ref, "ADMM paper r*", TOLS, mode="paper", penalty=r_star)
+    sweep = sample_penalty(
+        problem, np.geomspace(r_star / 10, r_star * 10, 10), rtol=1e-6, max_iter=5000
+    )
+    points += admm_sweep(problem, u_ref, "ADMM paper r̄", TOLS, mode="paper", penalty=sweep.r_best)
+    for tol in (1e-4, 1e-6, 1e-8, 1e-10):
+        try:
+            res = solve_snes_vi(problem, tol=tol)
+            points.append(
+                (
+                    "SNES VI",
+                    tol,
+                    res.time,
+                    max(error_of(res.u.x.array, u_ref), 1e-16),
+                    res.iterations,
+                )
+            )
+        except RuntimeError as err:
+            print(f"   SNES VI tol {tol}: {err}")
+    if osqp_ok:
+        qp = extract_qp(problem)
+        points += osqp_sweep(qp, u_ref, "OSQP default", {"check_termination": 1}, TOLS[:5])
+        twin = {
+            "rho": r_star,
+            "sigma": 1e-12,
+            "alpha": 1.0,
+            "scaling": 0,
+            "adaptive_rho": 0,
+            "polishing": False,
+            "check_termination": 1,
+        }
+        points += osqp_sweep(qp, u_ref, "OSQP twin", twin, TOLS)
+    for p in points:
+        print(
+            f"   {p[0]:18s} tol {p[1]:.0e}: time {p[2]:8.3f} s, error {p[3]:.2e}, "
+            f"iterations {p[4]}",
+            flush=True,
+        )
+
+    # time to reach each target error (first sweep point that achieves it)
+    rows = []
+    for label in dict.fromkeys(p[0] for p in points):
+        mine = [p for p in points if p[0] == label]
+        row = {"mesh": name, "solver": label}
+        for target in (1e-6, 1e-8):
+            hit = [p for p in mine if p[3] <= target]
+            best = min(hit, key=lambda p: p[2]) if hit else None
+            row[f"time to {target:.0e} [s]"] = f"{best[2]:.3g}" if best else "–"
+            row[f"iterations to {target:.0e}"] = best[4] if best else "–"
+        rows.append(row)
+    keys = list(rows[0])
+    print("\n| " + " | ".join(keys) + " |\n|" + "---|" * len(keys))
+    for row in rows:
+        print("| " + " | ".join(str(row[k]) for k in keys) + " |")
+    out.mkdir(parents=True, exist_ok=True)
+    tag = name.replace(" ", "_").replace("/", "_").replace("=", "")
+    with (out / f"work_precision_{tag}.csv").open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["solver", "tolerance", "time", "error", "iterations"])
+        writer.writerows(points)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.8))
+    for label in dict.fromkeys(p[0] for p in points):
+        mine = sorted((p for p in points if p[0] == label), key=lambda p: p[2])
+        ax.loglog([p[2] for p in mine], [p[3] for p in mine], marker="o", label=label)
+    ax.set_xlabel("wall time [s]")
+    ax.set_ylabel("‖u − u_ref‖ / ‖u_ref‖")
+    ax.set_title(f"Work against precision: {name}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / f"work_precision_{tag}.png", dpi=130)
+    problem.destroy()
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--out", default="out_benchmarks")
+    args = parser.parse_args()
+    assert MPI.COMM_WORLD.size == 1, "work_precision.py runs serially (OSQP is serial)"
+    out = Path(args.out)
+    if args.quick:
+        bench("example1 h=1/32", example1(h=1 / 32), out)
+        bench("example3 level 1", example3(level=1), out)
+    else:
+        bench("example1 h=1/192", example1(h=1 / 192), out)
+        bench("example3 level 3 h0=0.24", example3(level=3, h_bottom=0.24, h_top=0.24), out)
+
+
+if __name__ == "__main__":
+    main()
