@@ -71,6 +71,7 @@ class ContactSet:
         num_global: Total number m of contact nodes over all ranks.
         num_excluded: Nodes on Γ_C (all ranks) whose normal displacement is fixed by a
             Dirichlet condition and which are therefore not contact nodes.
+        q_to_node: For every local dof of Q, its node (block) in the displacement space.
     """
 
     Q: fem.FunctionSpace
@@ -84,6 +85,7 @@ class ContactSet:
     coordinates: npt.NDArray[np.float64]
     num_global: int
     num_excluded: int
+    q_to_node: npt.NDArray[np.int64]
 
 
 def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int) -> int:
@@ -245,4 +247,5 @@ def build_contact_set(
         coordinates=coordinates,
         num_global=int(n_global),
         num_excluded=int(n_on_contact - n_global),
+        q_to_node=q_to_node,
     )

@@ -25,10 +25,18 @@ small end of the wrong operator takes hundreds):
     exactly (λ = ∞): they are detected, deflated, and do not enter r*, since no choice
     of r changes how ADMM treats them.
 
-Factorisations: Â and A + r_a NᵀMN have A's sparsity pattern. Both are factorised
-in one :class:`~admm_dolfinx.operators.PenalisedOperator` - the one the ADMM then
-refactorises at r* - so the symbolic analysis (ordering) is computed once for all
-three and each of them costs one numeric factorisation.  Each operator application is one
+λ_min needs no factorisation of the whole body at the default (loose) tolerance: its
+eigenvector is the shortest-wave contact mode, which lives within a few elements of
+Γ_C, so S is replaced by the Schur complement S_L of a layer of L rings of cells
+along Γ_C with the rest held fixed (S_L ≥ S, and S_L = S once the layer is the whole
+mesh). L = 2, 4, 8, ... until μ_max settles to the tolerance; each layer costs a
+factorisation of its own small Â. At tolerances ≤ 1e-6 the exact S is used.
+
+Factorisations of the whole body: A + r_a NᵀMN (and Â, at tight tolerances) have A's
+sparsity pattern and are factorised in one
+:class:`~admm_dolfinx.operators.PenalisedOperator` - the one the ADMM then
+refactorises at r* - so the symbolic analysis (ordering) is computed once and each
+costs one numeric factorisation.  Each operator application is one
 forward/backward substitution; :attr:`PenaltyEstimate.solves` counts them.
 """
 
@@ -41,13 +49,15 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from dolfinx import fem, la
 from dolfinx.common import Timer
+from mpi4py import MPI
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx.operators import PenalisedOperator
-from admm_dolfinx.petsc import apply_options, unique_prefix
+from admm_dolfinx.petsc import apply_options, check_solve, create_factor_solver, unique_prefix
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["DEFAULT_PENALTY_TOL", "PenaltyEstimate", "estimate_penalty"]
@@ -63,6 +73,9 @@ DEFAULT_PENALTY_TOL = 1e-2
 _KAPPA_GUESS = 1e4
 #: Accept r_a when r_a λ_max ≤ this (then λ = θ/(1 − r_aθ) amplifies errors ≤ 5x).
 _MAX_RA_LAMBDA = 4.0
+#: Above this eigenvalue tolerance λ_min comes from layers along Γ_C (no factorisation
+#: of the whole body); at or below it, from the exact Schur complement.
+_LOCAL_MAX_TOL = 1e-6
 #: θ with 1 − r_a θ below this is a rigid motion (λ = ∞).
 _RIGID_TOL = 1e-6
 
@@ -115,6 +128,29 @@ def _probe_vector(coords: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return phase - np.floor(phase) - 0.5
 
 
+class _NodalMap:
+    """Contact-node values to and from vectors of a (sub)space with bs dofs per node."""
+
+    def __init__(self, nodes, free_normals, bs: int, gdim: int):
+        self.nodes = np.asarray(nodes)
+        self.free_normals = free_normals
+        self.bs = bs
+        self.gdim = gdim
+
+    def scatter(self, q, out: PETSc.Vec, weights) -> None:
+        """Out = Σ_j ñ_j weights_j q_j  (a nodal force; Dirichlet components zero)."""
+        out.set(0.0)
+        with out as arr:
+            arr.reshape(-1, self.bs)[self.nodes, : self.gdim] = (
+                self.free_normals * (weights * q)[:, None]
+            )
+
+    def gather(self, vec: PETSc.Vec) -> npt.NDArray[np.float64]:
+        """(N_F v)_j = ñ_j · v_j at the owned contact nodes."""
+        values = vec.array_r.reshape(-1, self.bs)[self.nodes, : self.gdim]
+        return np.einsum("ij,ij->i", values, self.free_normals)
+
+
 class _ContactSpace:
     """Distributed m-vectors on the owned contact nodes, and the operators' plumbing."""
 
@@ -125,6 +161,8 @@ class _ContactSpace:
         self.m = c.num_global
         self.sqrt_mass = np.sqrt(c.mass)
         self.free_sq = np.einsum("ij,ij->i", c.free_normals, c.free_normals)  # D = |ñ|²
+        self.map = _NodalMap(c.nodes, c.free_normals, problem.V.dofmap.index_map_bs,
+                             problem.gdim)
         self.b = problem.create_vector()
         self.x = problem.create_vector()
 
@@ -144,23 +182,6 @@ class _ContactSpace:
         mat.setUp()
         return mat
 
-    def scatter(self, q: npt.NDArray[np.float64], out: PETSc.Vec, weights) -> None:
-        """Out = Σ_j ñ_j weights_j q_j  (a nodal force; Dirichlet components zero)."""
-        out.set(0.0)
-        c = self.problem.contact
-        bs = self.problem.V.dofmap.index_map_bs
-        with out as arr:
-            arr.reshape(-1, bs)[c.nodes, : self.problem.gdim] = (
-                c.free_normals * (weights * q)[:, None]
-            )
-
-    def gather(self, vec: PETSc.Vec) -> npt.NDArray[np.float64]:
-        """(N_F v)_j = ñ_j · v_j at the owned contact nodes."""
-        c = self.problem.contact
-        bs = self.problem.V.dofmap.index_map_bs
-        values = vec.array_r.reshape(-1, bs)[c.nodes, : self.problem.gdim]
-        return np.einsum("ij,ij->i", values, c.free_normals)
-
     def destroy(self) -> None:
         self.b.destroy()
         self.x.destroy()
@@ -175,84 +196,141 @@ class _ComplianceOperator:
 
     def mult(self, mat, x, y):
         s = self.space
-        s.scatter(x.array_r, s.b, s.sqrt_mass)
+        s.map.scatter(x.array_r, s.b, s.sqrt_mass)
         self.operator.solve(s.b, s.x)
         with y as out:
-            out[:] = s.sqrt_mass * s.gather(s.x)
+            out[:] = s.sqrt_mass * s.map.gather(s.x)
+
+
+def projected_stiffness(A: PETSc.Mat, nodal: _NodalMap) -> PETSc.Mat:
+    """Â = P A P + c N_FᵀN_F with the nodal projector P = I − N_Fᵀ D⁻¹ N_F.
+
+    In coordinates rotated to each contact node's normal, Â is A with the normal rows
+    and columns replaced by c times the identity: a solve with Â is a solve with A_II.
+
+    Args:
+        A: Stiffness (global, or a sub-matrix of whole nodes) with bs dofs per node.
+        nodal: The contact nodes' positions in A's local node numbering.
+
+    Returns:
+        Â (the caller destroys it).
+    """
+    bs = nodal.bs
+    n_nodes = A.getLocalSize()[0] // bs
+    row0 = A.getOwnershipRange()[0]
+    ntilde = np.zeros((nodal.nodes.size, bs))
+    ntilde[:, : nodal.gdim] = nodal.free_normals
+    outer = np.einsum("ji,jk->jik", ntilde, ntilde)
+    p_blocks = np.tile(np.eye(bs), (n_nodes, 1, 1))
+    p_blocks[nodal.nodes] -= outer / np.einsum("ji,ji->j", ntilde, ntilde)[:, None, None]
+    q_blocks = np.zeros_like(p_blocks)
+    q_blocks[nodal.nodes] = outer
+    cols = row0 + (np.arange(n_nodes)[:, None] * bs + np.arange(bs)[None, :])
+    indices = np.repeat(cols, bs, axis=0).reshape(-1).astype(PETSc.IntType)
+    indptr = np.arange(0, n_nodes * bs * bs + 1, bs, dtype=PETSc.IntType)
+    sizes = A.getSizes()
+    comm = A.getComm()
+    P = PETSc.Mat().createAIJ(sizes, csr=(indptr, indices, p_blocks.reshape(-1)), comm=comm)
+    Q = PETSc.Mat().createAIJ(sizes, csr=(indptr, indices, q_blocks.reshape(-1)), comm=comm)
+    diagonal = A.getDiagonal()
+    c_scale = diagonal.sum() / diagonal.getSize()
+    diagonal.destroy()
+    hat = A.PtAP(P)
+    hat.axpy(c_scale, Q, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    hat.setOption(PETSc.Mat.Option.SPD, True)
+    P.destroy()
+    Q.destroy()
+    return hat
 
 
 class _SchurOperator:
     """x ↦ M^{-½} S M^{-½} x with S the Schur complement onto contact normal dofs.
 
-    The projected stiffness Â is factorised in the shared :class:`PenalisedOperator`
-    (same sparsity pattern as A, so the symbolic analysis is computed once).
+    Works on the whole mesh (exact S) or on a layer of elements along Γ_C with the
+    rest held fixed (S_L ≥ S, converging to S as the layer grows).
+
+    Args:
+        space: The contact space (m-vectors, masses).
+        A: The stiffness the Schur complement is taken of (whole or layer).
+        nodal: Contact node positions in A's local node numbering.
+        solver: Has ``solve(b, x)`` with a factorisation of ``projected_stiffness``.
     """
 
-    def __init__(self, space: _ContactSpace, operator: PenalisedOperator):
+    def __init__(self, space: _ContactSpace, A: PETSc.Mat, nodal: _NodalMap, solver):
         self.space = space
-        problem = space.problem
-        self.A = problem.A
-        self.operator = operator
-        hat = self._projected_stiffness(problem)
-        operator.load(hat, "the projected stiffness P A P + c NᵀN (Schur complement)")
-        hat.destroy()
-        self.rhs = problem.create_vector()
-        self.work = problem.create_vector()
-
-    def _projected_stiffness(self, problem: ContactProblem) -> PETSc.Mat:
-        """Â = P A P + c N_FᵀN_F with the nodal projector P = I − N_Fᵀ D⁻¹ N_F."""
-        c = problem.contact
-        bs = problem.V.dofmap.index_map_bs
-        A = problem.A
-        n_nodes = A.getLocalSize()[0] // bs
-        row0 = A.getOwnershipRange()[0]
-        # Nodal (bs × bs) blocks: identity for P and zero for NᵀN, except at contact nodes.
-        ntilde = np.zeros((c.nodes.size, bs))
-        ntilde[:, : problem.gdim] = c.free_normals
-        outer = np.einsum("ji,jk->jik", ntilde, ntilde)
-        p_blocks = np.tile(np.eye(bs), (n_nodes, 1, 1))
-        p_blocks[c.nodes] -= outer / np.einsum("ji,ji->j", ntilde, ntilde)[:, None, None]
-        q_blocks = np.zeros_like(p_blocks)
-        q_blocks[c.nodes] = outer
-        cols = row0 + (np.arange(n_nodes)[:, None] * bs + np.arange(bs)[None, :])
-        indices = np.repeat(cols, bs, axis=0).reshape(-1).astype(PETSc.IntType)
-        indptr = np.arange(0, n_nodes * bs * bs + 1, bs, dtype=PETSc.IntType)
-        sizes = A.getSizes()
-        P = PETSc.Mat().createAIJ(
-            sizes, csr=(indptr, indices, p_blocks.reshape(-1)), comm=problem.comm
-        )
-        Q = PETSc.Mat().createAIJ(
-            sizes, csr=(indptr, indices, q_blocks.reshape(-1)), comm=problem.comm
-        )
-        diagonal = A.getDiagonal()
-        c_scale = diagonal.sum() / diagonal.getSize()
-        diagonal.destroy()
-        hat = A.PtAP(P)
-        hat.axpy(c_scale, Q, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        hat.setOption(PETSc.Mat.Option.SPD, True)
-        P.destroy()
-        Q.destroy()
-        return hat
+        self.A = A
+        self.nodal = nodal
+        self.solver = solver
+        self.u, self.rhs = A.createVecs()
+        self.w, self.work = A.createVecs()
 
     def mult(self, mat, x, y):
-        s = self.space
+        s, nodal = self.space, self.nodal
         # u = N_Fᵀ D⁻¹ z (z = M^{-½} x): a displacement with the prescribed normal trace
         z = x.array_r / s.sqrt_mass
-        s.scatter(z, s.x, 1.0 / s.free_sq)
+        nodal.scatter(z, self.u, 1.0 / s.free_sq)
         # w ∈ ker N_F minimising the energy: Â w = −P A u  (P A u = A u − N_Fᵀ D⁻¹ N_F A u)
-        self.A.mult(s.x, self.work)
-        s.scatter(s.gather(self.work), self.rhs, 1.0 / s.free_sq)
+        self.A.mult(self.u, self.work)
+        nodal.scatter(nodal.gather(self.work), self.rhs, 1.0 / s.free_sq)
         self.rhs.aypx(-1.0, self.work)  # rhs = P A u
         self.rhs.scale(-1.0)
-        self.operator.solve(self.rhs, s.b)
-        s.x.axpy(1.0, s.b)  # u + w
-        self.A.mult(s.x, self.work)
+        self.solver.solve(self.rhs, self.w)
+        self.u.axpy(1.0, self.w)  # u + w
+        self.A.mult(self.u, self.work)
         with y as out:
-            out[:] = s.gather(self.work) / s.free_sq / s.sqrt_mass
+            out[:] = nodal.gather(self.work) / s.free_sq / s.sqrt_mass
 
     def free(self):
-        for obj in (self.rhs, self.work):
+        for obj in (self.u, self.rhs, self.w, self.work):
             obj.destroy()
+
+
+class _LocalSolver:
+    """A factorised small matrix (the projected stiffness of a layer along Γ_C)."""
+
+    def __init__(self, matrix: PETSc.Mat, prefix: str, options: dict | None):
+        self.ksp = create_factor_solver(matrix, prefix, options)
+        self.ksp.setUp()
+        self.solves = 0
+
+    def solve(self, b, x):
+        self.ksp.solve(b, x)
+        self.solves += 1
+        check_solve(self.ksp, "the projected stiffness of a layer along Γ_C")
+
+    def destroy(self):
+        self.ksp.destroy()
+
+
+def contact_layer(problem: ContactProblem, layers: int) -> tuple[np.ndarray, bool]:
+    """Owned nodes within ``layers`` rings of cells of the contact nodes; collective.
+
+    Args:
+        problem: The contact problem.
+        layers: Number of rings of cells around the contact nodes.
+
+    Returns:
+        The sorted local node indices, and whether the layer is the whole mesh.
+    """
+    Q = problem.contact.Q
+    marker = fem.Function(Q)
+    marker.x.array[:] = 0.0
+    marker.x.array[problem.contact.dofs] = 1.0
+    marker.x.scatter_forward()
+    cell_dofs = Q.dofmap.list
+    for _ in range(layers):
+        touched = marker.x.array[cell_dofs].max(axis=1) > 0.0
+        grown = np.zeros_like(marker.x.array)
+        grown[cell_dofs[touched].ravel()] = 1.0
+        marker.x.array[:] = grown
+        marker.x.scatter_reverse(la.InsertMode.add)
+        marker.x.array[:] = np.minimum(marker.x.array, 1.0)
+        marker.x.scatter_forward()
+    n_owned = Q.dofmap.index_map.size_local
+    owned = np.flatnonzero(marker.x.array[:n_owned] > 0.0)
+    total = problem.comm.allreduce(owned.size, op=MPI.SUM)
+    nodes = np.sort(problem.contact.q_to_node[owned])
+    return nodes.astype(np.int32), total == Q.dofmap.index_map.size_global
 
 
 def _largest_eigenvalues(
@@ -292,6 +370,46 @@ def _largest_eigenvalues(
     finally:
         eps.destroy()
         mat.destroy()
+
+
+def _lambda_min_local(space, tol, max_it, start, prefix, options, vectors):
+    """μ_max of the Schur complement of growing layers along Γ_C, until it settles.
+
+    S_L (the rest of the body held fixed beyond L rings of cells) is stiffer than S
+    and tends to it as L grows; its top eigenvector, the shortest-wave contact mode,
+    lives within a few elements of Γ_C. L = 2, 4, 8, ... until two successive μ_max
+    agree to ``tol`` or the layer is the whole mesh (then S_L = S exactly).
+    """
+    problem = space.problem
+    bs = problem.V.dofmap.index_map_bs
+    row0 = problem.A.getOwnershipRange()[0]
+    previous, layers, solves, steps = None, 2, 0, 0
+    while True:
+        steps += 1
+        nodes, whole = contact_layer(problem, layers)
+        dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
+        index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
+        A_layer = problem.A.createSubMatrix(index_set, index_set)
+        nodal = _NodalMap(np.searchsorted(nodes, problem.contact.nodes),
+                          problem.contact.free_normals, bs, problem.gdim)
+        hat = projected_stiffness(A_layer, nodal)
+        solver = _LocalSolver(hat, prefix + "layer_", options)
+        schur = _SchurOperator(space, A_layer, nodal, solver)
+        try:
+            mu, vec, its = _largest_eigenvalues(
+                space, schur, prefix + "lmin_", tol, max_it, [], start
+            )
+        finally:
+            solves += solver.solves
+            schur.free()
+            solver.destroy()
+            for obj in (hat, A_layer, index_set):
+                obj.destroy()
+        vectors.append(vec)
+        start = vec  # warm start the next, wider layer
+        if whole or (previous is not None and abs(previous - mu) <= tol * mu):
+            return mu, its, ("all" if whole else layers, steps), solves
+        previous, layers = mu, 2 * layers
 
 
 def estimate_penalty(
@@ -336,17 +454,25 @@ def estimate_penalty(
         # ---- λ_min = 1 / μ_max(M^{-½} S M^{-½})
         with Timer("admm_dolfinx: r* lambda_min"):
             t0 = time.perf_counter()
-            schur = _SchurOperator(space, operator)
             start = space.start_vector()
             vectors.append(start)
-            mu, vec, its = _largest_eigenvalues(
-                space, schur, prefix + "lmin_", tol, max_it, [], start
-            )
-            vectors.append(vec)
+            if tol > _LOCAL_MAX_TOL:
+                mu, its, layers, local_solves = _lambda_min_local(
+                    space, tol, max_it, start, prefix, petsc_options, vectors
+                )
+                details.update(layers=layers[0], layer_steps=layers[1], solves_min=local_solves)
+            else:
+                hat = projected_stiffness(problem.A, space.map)
+                operator.load(hat, "the projected stiffness P A P + c NᵀN (Schur complement)")
+                hat.destroy()
+                schur = _SchurOperator(space, problem.A, space.map, operator)
+                mu, vec, its = _largest_eigenvalues(
+                    space, schur, prefix + "lmin_", tol, max_it, [], start
+                )
+                vectors.append(vec)
+                details.update(layers="all", layer_steps=0, solves_min=operator.solves)
             lambda_min = 1.0 / mu
-            details.update(
-                solves_min=operator.solves, time_min=time.perf_counter() - t0, restarts_min=its
-            )
+            details.update(time_min=time.perf_counter() - t0, restarts_min=its)
 
         # ---- λ_max from θ_max of M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½}
         with Timer("admm_dolfinx: r* lambda_max"):
