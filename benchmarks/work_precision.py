@@ -68,6 +68,15 @@ def extract_qp(problem):
     return A[free][:, free].tocsc(), -load[free], C.tocsc(), scale * upper, free, u_d
 
 
+def report(point):
+    print(
+        f"   {point[0]:18s} tol {point[1]:.0e}: time {point[2]:8.3f} s, error {point[3]:.2e}, "
+        f"iterations {point[4]}",
+        flush=True,
+    )
+    return point
+
+
 def error_of(u, u_ref):
     return float(np.linalg.norm(u - u_ref) / np.linalg.norm(u_ref))
 
@@ -81,15 +90,9 @@ def admm_sweep(problem, u_ref, label, tols, **options):
         for tol in tols:
             solver.rtol = tol
             result = solver.solve()
-            points.append(
-                (
-                    label,
-                    tol,
-                    fixed + result.timings["iterations"],
-                    error_of(result.u.x.array, u_ref),
-                    result.iterations,
-                )
-            )
+            error = error_of(result.u.x.array, u_ref)
+            elapsed = fixed + result.timings["iterations"]
+            points.append(report((label, tol, elapsed, error, result.iterations)))
     return points
 
 
@@ -117,45 +120,49 @@ def osqp_sweep(qp, u_ref, label, settings, tols):
         elapsed = time.perf_counter() - t0
         u = u_d.copy()
         u[free] = res.x
-        points.append((label, tol, elapsed, error_of(u, u_ref), res.info.iter))
+        points.append(report((label, tol, elapsed, error_of(u, u_ref), res.info.iter)))
     return points
 
 
-def bench(name, scene, out, osqp_ok=True):
+def bench(name, scene, out, osqp_ok=True, light=False):
+    """Sweep every solver on one mesh; ``light`` (the 3D mesh) trims the sweeps:
+    3 tolerances, no r̄ sampling, one SNES VI run, reference by ADMM alone."""
     problem = scene.problem()
     dofs = problem.A.getSize()[0]
     print(
         f"\n## {name}: {scene.num_nodes} nodes, {dofs} dofs, m = {problem.num_contact_nodes}",
         flush=True,
     )
+    tols = (1e-4, 1e-6, 1e-8) if light else TOLS
     with admm_dolfinx.ADMMSolver(problem, rtol=1e-11, max_iter=20000) as solver:
         tight = solver.solve()
-    ref = solve_snes_vi(problem, tol=1e-11, initial_guess=tight.u.x.petsc_vec)
-    u_ref = ref.u.x.array.copy()
+    if light:
+        u_ref = tight.u.x.array.copy()
+        print(f"   reference: ADMM at rtol 1e-11 (KKT {tight.kkt.max():.1e})", flush=True)
+    else:
+        ref = solve_snes_vi(problem, tol=1e-11, initial_guess=tight.u.x.petsc_vec)
+        u_ref = ref.u.x.array.copy()
     r_star = tight.penalty
-    points = admm_sweep(problem, u_ref, "ADMM accelerated", TOLS)
-    points += admm_sweep(problem, u_ref, "ADMM paper r*", TOLS, mode="paper", penalty=r_star)
-    sweep = sample_penalty(
-        problem, np.geomspace(r_star / 10, r_star * 10, 10), rtol=1e-6, max_iter=5000
-    )
-    points += admm_sweep(problem, u_ref, "ADMM paper r̄", TOLS, mode="paper", penalty=sweep.r_best)
-    for tol in (1e-4, 1e-6, 1e-8, 1e-10):
+    points = admm_sweep(problem, u_ref, "ADMM accelerated", tols)
+    points += admm_sweep(problem, u_ref, "ADMM paper r*", tols, mode="paper", penalty=r_star)
+    if not light:
+        sweep = sample_penalty(
+            problem, np.geomspace(r_star / 10, r_star * 10, 10), rtol=1e-6, max_iter=5000
+        )
+        points += admm_sweep(
+            problem, u_ref, "ADMM paper r̄", TOLS, mode="paper", penalty=sweep.r_best
+        )
+    for tol in (1e-8,) if light else (1e-4, 1e-6, 1e-8, 1e-10):
         try:
             res = solve_snes_vi(problem, tol=tol)
-            points.append(
-                (
-                    "SNES VI",
-                    tol,
-                    res.time,
-                    max(error_of(res.u.x.array, u_ref), 1e-16),
-                    res.iterations,
-                )
-            )
+            error = max(error_of(res.u.x.array, u_ref), 1e-16)
+            points.append(report(("SNES VI", tol, res.time, error, res.iterations)))
         except RuntimeError as err:
             print(f"   SNES VI tol {tol}: {err}")
     if osqp_ok:
         qp = extract_qp(problem)
-        points += osqp_sweep(qp, u_ref, "OSQP default", {"check_termination": 1}, TOLS[:5])
+        osqp_tols = (1e-4, 1e-6) if light else TOLS
+        points += osqp_sweep(qp, u_ref, "OSQP default", {"check_termination": 1}, osqp_tols[:5])
         twin = {
             "rho": r_star,
             "sigma": 1e-12,
@@ -165,7 +172,7 @@ def bench(name, scene, out, osqp_ok=True):
             "polishing": False,
             "check_termination": 1,
         }
-        points += osqp_sweep(qp, u_ref, "OSQP twin", twin, TOLS)
+        points += osqp_sweep(qp, u_ref, "OSQP twin", twin, (1e-4, 1e-6) if light else TOLS)
     for p in points:
         print(
             f"   {p[0]:18s} tol {p[1]:.0e}: time {p[2]:8.3f} s, error {p[3]:.2e}, "
@@ -216,6 +223,7 @@ def bench(name, scene, out, osqp_ok=True):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--only", choices=["2d", "3d"], help="run one of the two meshes")
     parser.add_argument("--out", default="out_benchmarks")
     args = parser.parse_args()
     assert MPI.COMM_WORLD.size == 1, "work_precision.py runs serially (OSQP is serial)"
@@ -224,8 +232,15 @@ def main():
         bench("example1 h=1/32", example1(h=1 / 32), out)
         bench("example3 level 1", example3(level=1), out)
     else:
-        bench("example1 h=1/192", example1(h=1 / 192), out)
-        bench("example3 level 3 h0=0.24", example3(level=3, h_bottom=0.24, h_top=0.24), out)
+        if args.only in (None, "2d"):
+            bench("example1 h=1/192", example1(h=1 / 192), out)
+        if args.only in (None, "3d"):
+            bench(
+                "example3 level 3 h0=0.24",
+                example3(level=3, h_bottom=0.24, h_top=0.24),
+                out,
+                light=True,
+            )
 
 
 if __name__ == "__main__":
