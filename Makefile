@@ -33,7 +33,7 @@ venv: $(VENV)/.installed
 demo: venv
 	$(PY) demos/example1.py
 
-test: test-serial test-mpi test-demos reproduce-quick
+test: test-serial test-mpi reproduce-quick test-demos
 
 test-serial: venv
 	$(PY) $(PYTEST)
