@@ -261,7 +261,8 @@ def quarter_disc(
             field.setNumber(thr, "DistMax", 0.5 * R)
         else:
             lowest = [
-                tag for _, tag in gmsh.model.getEntities(0)
+                tag
+                for _, tag in gmsh.model.getEntities(0)
                 if np.linalg.norm(gmsh.model.getValue(0, tag, [])) < 1e-8 * R
             ]
             field.setNumbers(dist, "PointsList", lowest)

@@ -161,8 +161,7 @@ class _ContactSpace:
         self.m = c.num_global
         self.sqrt_mass = np.sqrt(c.mass)
         self.free_sq = np.einsum("ij,ij->i", c.free_normals, c.free_normals)  # D = |ñ|²
-        self.map = _NodalMap(c.nodes, c.free_normals, problem.V.dofmap.index_map_bs,
-                             problem.gdim)
+        self.map = _NodalMap(c.nodes, c.free_normals, problem.V.dofmap.index_map_bs, problem.gdim)
         self.b = problem.create_vector()
         self.x = problem.create_vector()
 
@@ -390,8 +389,12 @@ def _lambda_min_local(space, tol, max_it, start, prefix, options, vectors):
         dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
         index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
         A_layer = problem.A.createSubMatrix(index_set, index_set)
-        nodal = _NodalMap(np.searchsorted(nodes, problem.contact.nodes),
-                          problem.contact.free_normals, bs, problem.gdim)
+        nodal = _NodalMap(
+            np.searchsorted(nodes, problem.contact.nodes),
+            problem.contact.free_normals,
+            bs,
+            problem.gdim,
+        )
         hat = projected_stiffness(A_layer, nodal)
         solver = _LocalSolver(hat, prefix + "layer_", options)
         schur = _SchurOperator(space, A_layer, nodal, solver)

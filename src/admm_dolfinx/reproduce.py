@@ -105,6 +105,70 @@ def _r_star_row(problem, progress: Progress, label: str):
     return estimate, result, time.perf_counter() - t0
 
 
+def _fixed_penalty_table(
+    name: str,
+    title: str,
+    progress: Progress,
+    meshes: list[tuple[str, Callable[[], object], tuple]],
+    r_star: float,
+    r_bar: float,
+) -> Table:
+    """Iterations and times of Algorithm 2 at two fixed penalties over a mesh sequence.
+
+    Args:
+        name: Table name.
+        title: Table title.
+        progress: Progress callback.
+        meshes: ``(label, build_scene, paper)`` with ``paper`` either
+            ``(iter r*, iter r̄)`` (the mesh is named by h = label) or
+            ``(nodes/m_c, iter r*, iter r̄)``.
+        r_star: The paper's r*.
+        r_bar: The paper's r̄.
+    """
+    by_h = len(meshes[0][2]) == 2
+    head = ["h", "nodes"] if by_h else ["nodes/m_c (paper)", "nodes/m_c"]
+    table = Table(
+        name,
+        title,
+        [
+            *head,
+            "iter r* (paper)",
+            "iter r*",
+            "time r* [s]",
+            "iter r̄ (paper)",
+            "iter r̄",
+            "time r̄ [s]",
+        ],
+    )
+    for label, build, paper in meshes:
+        progress(f"{name} {label}")
+        scene = build()
+        problem = scene.problem()
+        res_star, t_star = _solve(problem, r_star)
+        res_bar, t_bar = _solve(problem, r_bar)
+        mesh = (
+            {"h": label, "nodes": scene.num_nodes}
+            if by_h
+            else {
+                "nodes/m_c (paper)": paper[0],
+                "nodes/m_c": f"{scene.num_nodes}/{problem.num_contact_nodes}",
+            }
+        )
+        table.rows.append(
+            mesh
+            | {
+                "iter r* (paper)": paper[-2],
+                "iter r*": res_star.iterations,
+                "time r* [s]": _seconds(t_star),
+                "iter r̄ (paper)": paper[-1],
+                "iter r̄": res_bar.iterations,
+                "time r̄ [s]": _seconds(t_bar),
+            }
+        )
+        problem.destroy()
+    return table
+
+
 # --------------------------------------------------------------------------- Example 1
 def table1(progress: Progress, quick: bool = False) -> Table:
     """Table 1: r* against the sampled r̄ on Example 1, h = 1/8 ... 1/32 (and 1/64)."""
@@ -176,39 +240,18 @@ def table1(progress: Progress, quick: bool = False) -> Table:
 def table2(progress: Progress, quick: bool = False) -> Table:
     """Table 2: Algorithm 2 at the paper's fixed r* = 3134.1289 and r̄ = 3510."""
     paper = {8: (24, 19), 16: (19, 20), 32: (27, 19), 64: (25, 20), 128: (19, 20), 256: (21, 20)}
-    table = Table(
+    meshes = [
+        (f"1/{n}", (lambda n=n: example1(h=1 / n)), paper[n])
+        for n in ((8, 16, 32) if quick else (8, 16, 32, 64, 128, 256))
+    ]
+    table = _fixed_penalty_table(
         "Table 2",
         "Algorithm 2 with r* = 3134.1289 and r̄ = 3510 (Example 1)",
-        [
-            "h",
-            "nodes",
-            "iter r* (paper)",
-            "iter r*",
-            "time r* [s]",
-            "iter r̄ (paper)",
-            "iter r̄",
-            "time r̄ [s]",
-        ],
+        progress,
+        meshes,
+        3134.1289,
+        3510.0,
     )
-    for n in (8, 16, 32) if quick else (8, 16, 32, 64, 128, 256):
-        progress(f"table2 h=1/{n}")
-        scene = example1(h=1 / n)
-        problem = scene.problem()
-        res_star, t_star = _solve(problem, 3134.1289)
-        res_bar, t_bar = _solve(problem, 3510.0)
-        table.rows.append(
-            {
-                "h": f"1/{n}",
-                "nodes": scene.num_nodes,
-                "iter r* (paper)": paper[n][0],
-                "iter r*": res_star.iterations,
-                "time r* [s]": _seconds(t_star),
-                "iter r̄ (paper)": paper[n][1],
-                "iter r̄": res_bar.iterations,
-                "time r̄ [s]": _seconds(t_bar),
-            }
-        )
-        problem.destroy()
     table.notes.append("The penalties are the paper's values (from its h = 1/32 mesh).")
     return table
 
@@ -304,40 +347,18 @@ def table4(progress: Progress, quick: bool = False) -> Table:
         3: ("26181/229", 51, 51),
         4: ("104137/457", 50, 51),
     }
-    table = Table(
+    meshes = [
+        (f"level {k}", (lambda k=k: example2(level=k)), paper[k])
+        for k in ((0, 1) if quick else (0, 1, 2, 3, 4))
+    ]
+    return _fixed_penalty_table(
         "Table 4",
         "Algorithm 2 with r* = 201.7825 and r̄ = 200 (Hertz problem)",
-        [
-            "nodes/m_c (paper)",
-            "nodes/m_c",
-            "iter r* (paper)",
-            "iter r*",
-            "time r* [s]",
-            "iter r̄ (paper)",
-            "iter r̄",
-            "time r̄ [s]",
-        ],
+        progress,
+        meshes,
+        201.7825,
+        200.0,
     )
-    for level in (0, 1) if quick else (0, 1, 2, 3, 4):
-        progress(f"table4 level {level}")
-        scene = example2(level=level)
-        problem = scene.problem()
-        res_star, t_star = _solve(problem, 201.7825)
-        res_bar, t_bar = _solve(problem, 200.0)
-        table.rows.append(
-            {
-                "nodes/m_c (paper)": paper[level][0],
-                "nodes/m_c": f"{scene.num_nodes}/{problem.num_contact_nodes}",
-                "iter r* (paper)": paper[level][1],
-                "iter r*": res_star.iterations,
-                "time r* [s]": _seconds(t_star),
-                "iter r̄ (paper)": paper[level][2],
-                "iter r̄": res_bar.iterations,
-                "time r̄ [s]": _seconds(t_bar),
-            }
-        )
-        problem.destroy()
-    return table
 
 
 # --------------------------------------------------------------------------- Example 3
@@ -388,40 +409,18 @@ def table6(progress: Progress, quick: bool = False) -> Table:
         2: ("9245/603", 31, 33),
         3: ("69897/2341", 32, 30),
     }
-    table = Table(
+    meshes = [
+        (f"level {k}", (lambda k=k: example3(level=k)), paper[k])
+        for k in ((0, 1) if quick else (0, 1, 2, 3))
+    ]
+    return _fixed_penalty_table(
         "Table 6",
         "Algorithm 2 with r* = 3.1026e6 and r̄ = 2.6e6 (3D problem)",
-        [
-            "nodes/m_c (paper)",
-            "nodes/m_c",
-            "iter r* (paper)",
-            "iter r*",
-            "time r* [s]",
-            "iter r̄ (paper)",
-            "iter r̄",
-            "time r̄ [s]",
-        ],
+        progress,
+        meshes,
+        3.1026e6,
+        2.6e6,
     )
-    for level in (0, 1) if quick else (0, 1, 2, 3):
-        progress(f"table6 level {level}")
-        scene = example3(level=level)
-        problem = scene.problem()
-        res_star, t_star = _solve(problem, 3.1026e6)
-        res_bar, t_bar = _solve(problem, 2.6e6)
-        table.rows.append(
-            {
-                "nodes/m_c (paper)": paper[level][0],
-                "nodes/m_c": f"{scene.num_nodes}/{problem.num_contact_nodes}",
-                "iter r* (paper)": paper[level][1],
-                "iter r*": res_star.iterations,
-                "time r* [s]": _seconds(t_star),
-                "iter r̄ (paper)": paper[level][2],
-                "iter r̄": res_bar.iterations,
-                "time r̄ [s]": _seconds(t_bar),
-            }
-        )
-        problem.destroy()
-    return table
 
 
 TABLES: dict[str, Callable[..., Table]] = {

@@ -336,8 +336,15 @@ def hertz(
         contact_marker=tags["arc"],
         obstacle=Plane(point=(0.0, 0.0), normal=(0.0, 1.0)),
         h=h_contact,
-        info={"E": E, "nu": nu, "radius": radius, "load": total, "level": level,
-              "a": a_exact, "p0": p0},
+        info={
+            "E": E,
+            "nu": nu,
+            "radius": radius,
+            "load": total,
+            "level": level,
+            "a": a_exact,
+            "p0": p0,
+        },
     )
 
 

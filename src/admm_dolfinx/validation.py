@@ -59,8 +59,13 @@ def hertz_errors(scene, problem, multiplier) -> HertzErrors:
     ph = np.interp(s, xs, ls)
     pe = p0 * np.sqrt(np.clip(1.0 - s**2 / a**2, 0.0, None))
     l2 = float(np.sqrt(np.trapezoid((ph - pe) ** 2, s) / np.trapezoid(pe**2, s)))
-    return HertzErrors(h=scene.h, p0_error=float(ls.max() / p0 - 1.0), a_inside=inside,
-                       a_error=a_error, l2_error=l2)
+    return HertzErrors(
+        h=scene.h,
+        p0_error=float(ls.max() / p0 - 1.0),
+        a_inside=inside,
+        a_error=a_error,
+        l2_error=l2,
+    )
 
 
 def observed_rate(h, errors) -> float:
