@@ -169,6 +169,52 @@ def _fixed_penalty_table(
     return table
 
 
+_SAMPLING_COLUMNS = [
+    "m_c (paper)",
+    "m_c",
+    "r* (paper)",
+    "r*",
+    "iter r* (paper)",
+    "iter r*",
+    "time r* [s]",
+    "r̄ (paper)",
+    "r̄",
+    "iter r̄ (paper)",
+    "iter r̄",
+    "time r̄ [s]",
+    "iter r* / iter r̄",
+]
+
+
+def _sampling_row(
+    table: Table, problem, E: float, progress: Progress, label: str, samples: int, paper: tuple
+) -> dict:
+    """One row of r* (with its ADMM solve) against the sampled r̄, plus its curve.
+
+    ``paper`` is (m_c, r*, iter r*, time r*, r̄, iter r̄, time r̄) from the paper.
+    """
+    est, res, t_star = _r_star_row(problem, progress, label)
+    sweep = _sweep(problem, E, progress, label, samples)
+    name = label.split(" ", 1)[1]
+    table.curves.append((name, sweep.r, sweep.iterations))
+    table.marks.append((f"r* ({name}): {res.iterations} it.", est.r, res.iterations))
+    return {
+        "m_c (paper)": paper[0],
+        "m_c": problem.num_contact_nodes,
+        "r* (paper)": paper[1],
+        "r*": est.r,
+        "iter r* (paper)": paper[2],
+        "iter r*": res.iterations,
+        "time r* [s]": _seconds(t_star),
+        "r̄ (paper)": paper[4],
+        "r̄": sweep.r_best,
+        "iter r̄ (paper)": paper[5],
+        "iter r̄": sweep.iterations_best,
+        "time r̄ [s]": _seconds(sweep.time),
+        "iter r* / iter r̄": round(res.iterations / sweep.iterations_best, 2),
+    }
+
+
 # --------------------------------------------------------------------------- Example 1
 def table1(progress: Progress, quick: bool = False) -> Table:
     """Table 1: r* against the sampled r̄ on Example 1, h = 1/8 ... 1/32 (and 1/64)."""
@@ -182,50 +228,14 @@ def table1(progress: Progress, quick: bool = False) -> Table:
     table = Table(
         "Table 1",
         "r̄ obtained by sampling versus r* (Example 1)",
-        [
-            "h",
-            "m_c (paper)",
-            "m_c",
-            "r* (paper)",
-            "r*",
-            "iter r* (paper)",
-            "iter r*",
-            "time r* [s]",
-            "r̄ (paper)",
-            "r̄",
-            "iter r̄ (paper)",
-            "iter r̄",
-            "time r̄ [s]",
-            "iter r* / iter r̄",
-        ],
+        ["h", *_SAMPLING_COLUMNS],
+        figure="figure2",
     )
-    table.figure = "figure2"
     samples = 40 if quick else 200
     for n in (8, 16) if quick else (8, 16, 32, 64):
         problem = example1(h=1 / n).problem()
-        est, res, t_star = _r_star_row(problem, progress, f"table1 h=1/{n}")
-        sweep = _sweep(problem, 2000.0, progress, f"table1 h=1/{n}", samples)
-        table.curves.append((f"h = 1/{n}", sweep.r, sweep.iterations))
-        table.marks.append((f"r* (h = 1/{n}): {res.iterations} it.", est.r, res.iterations))
-        p = paper[n]
-        table.rows.append(
-            {
-                "h": f"1/{n}",
-                "m_c (paper)": p[0],
-                "m_c": problem.num_contact_nodes,
-                "r* (paper)": p[1],
-                "r*": est.r,
-                "iter r* (paper)": p[2],
-                "iter r*": res.iterations,
-                "time r* [s]": _seconds(t_star),
-                "r̄ (paper)": p[4],
-                "r̄": sweep.r_best,
-                "iter r̄ (paper)": p[5],
-                "iter r̄": sweep.iterations_best,
-                "time r̄ [s]": _seconds(sweep.time),
-                "iter r* / iter r̄": round(res.iterations / sweep.iterations_best, 2),
-            }
-        )
+        row = _sampling_row(table, problem, 2000.0, progress, f"table1 h=1/{n}", samples, paper[n])
+        table.rows.append({"h": f"1/{n}"} | row)
         problem.destroy()
     table.notes += [
         "m_c: our contact nodes exclude the clamped corner (0, 0), whose normal "
@@ -266,54 +276,23 @@ def table3(progress: Progress, quick: bool = False) -> Table:
     table = Table(
         "Table 3",
         "r̄ obtained by sampling versus r* (Hertz problem)",
-        [
-            "m_c (paper)",
-            "m_c",
-            "nodes",
-            "r* (paper)",
-            "r*",
-            "iter r* (paper)",
-            "iter r*",
-            "time r* [s]",
-            "r̄ (paper)",
-            "r̄",
-            "iter r̄ (paper)",
-            "iter r̄",
-            "time r̄ [s]",
-            "iter r* / iter r̄",
-        ],
+        [*_SAMPLING_COLUMNS[:2], "nodes", *_SAMPLING_COLUMNS[2:]],
+        figure="figure5",
     )
-    table.figure = "figure5"
     samples = 40 if quick else 200
     for level in (0,) if quick else (0, 1):
         scene = example2(level=level)
         problem = scene.problem()
-        label = f"table3 level {level}"
-        est, res, t_star = _r_star_row(problem, progress, label)
-        sweep = _sweep(problem, 2000.0, progress, label, samples)
-        table.curves.append((f"m_c = {problem.num_contact_nodes}", sweep.r, sweep.iterations))
-        table.marks.append(
-            (f"r* (m_c = {problem.num_contact_nodes}): {res.iterations} it.", est.r, res.iterations)
+        row = _sampling_row(
+            table,
+            problem,
+            2000.0,
+            progress,
+            f"table3 m_c={problem.num_contact_nodes}",
+            samples,
+            paper[level],
         )
-        p = paper[level]
-        table.rows.append(
-            {
-                "m_c (paper)": p[0],
-                "m_c": problem.num_contact_nodes,
-                "nodes": scene.num_nodes,
-                "r* (paper)": p[1],
-                "r*": est.r,
-                "iter r* (paper)": p[2],
-                "iter r*": res.iterations,
-                "time r* [s]": _seconds(t_star),
-                "r̄ (paper)": p[4],
-                "r̄": sweep.r_best,
-                "iter r̄ (paper)": p[5],
-                "iter r̄": sweep.iterations_best,
-                "time r̄ [s]": _seconds(sweep.time),
-                "iter r* / iter r̄": round(res.iterations / sweep.iterations_best, 2),
-            }
-        )
+        table.rows.append(row | {"nodes": scene.num_nodes})
         problem.destroy()
     # The paper makes A invertible with "a small positive constant on the vertical
     # components of Γ_D": measure how its r* then depends on that constant.
