@@ -56,8 +56,8 @@ from dolfinx.common import Timer
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx.anderson import AndersonMixer
-from admm_dolfinx.kkt import KKTResiduals, compute_kkt_residuals
+from admm_dolfinx.anderson import AndersonMixer, weighted_norm
+from admm_dolfinx.kkt import KKTResiduals, _ratio, compute_kkt_residuals, gap_residuals
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.penalty import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_penalty
 from admm_dolfinx.petsc import unique_prefix
@@ -179,12 +179,6 @@ def _check_penalty(r: Any) -> float:
             "of Young's modulus."
         )
     return value
-
-
-def _ratio(num: float, den: float) -> float:
-    if num == 0.0:
-        return 0.0
-    return num / den if den > 0.0 else math.inf
 
 
 class ADMMSolver:
@@ -341,10 +335,14 @@ class ADMMSolver:
         m = g.size
         t_start = time.perf_counter()
         mass = c.mass
-        free_sq = np.einsum("ij,ij->i", c.free_normals, c.free_normals)
+        # |NᵀM e_j| on the free dofs: turns nodal values into the equilibrium residual
+        force = np.linalg.norm(c.free_normals, axis=1) * mass
         # W-norm of z = (p, λ): p weighted by M, λ by M/r² (both in displacement units)
         weights = np.concatenate([mass, mass / r**2])
-        wnorm = AndersonMixer(1, weights, problem.comm).norm
+
+        def wnorm(vec):
+            return weighted_norm(vec, weights, problem.comm)
+
         mixer = AndersonMixer(self.anderson, weights, problem.comm) if self.anderson else None
         load_norm = problem.load_norm
 
@@ -395,30 +393,22 @@ class ADMMSolver:
                     Tz = np.concatenate([p, lam])
 
                     # residuals of (u, λ⁺) and of the fixed-point map
-                    fpr = _ratio(wnorm(Tz - z), wnorm(Tz))
+                    res = wnorm(Tz - z)
+                    fpr = _ratio(res, wnorm(Tz))
                     x_old.axpy(-1.0, x)
                     du = _ratio(x_old.norm(), x.norm())
                     x.copy(x_old)
                     dp = _ratio(problem.global_norm(p - p_prev), problem.global_norm(p))
                     p_prev = p
                     u_scale = x.norm(PETSc.NormType.NORM_INFINITY)
-                    lam_scale = problem.global_norm(lam, np.inf)
-                    finite = np.isfinite(g)
-                    slack = np.where(finite, g - nu, 0.0)
-                    feas = _ratio(problem.global_norm(np.maximum(-slack, 0.0), np.inf), u_scale)
-                    comp = _ratio(
-                        problem.global_norm(np.where(lam > 0, lam * np.abs(slack), 0.0), np.inf),
-                        lam_scale * u_scale,
-                    )
+                    feas, comp = gap_residuals(problem, nu, lam, u_scale)
                     # A u − f + NᵀMλ⁺ = NᵀM d at the contact nodes, Dirichlet rows excluded
                     d = r * (p_in - nu) + (lam - lam_in)
-                    force = np.sqrt(free_sq) * mass
                     eq = _ratio(
                         problem.global_norm(force * d),
                         max(load_norm, problem.global_norm(force * lam)),
                     )
                     active = int(problem.comm.allreduce(int(np.count_nonzero(lam > 0.0))))
-                    res = wnorm(Tz - z)
 
                     # safeguard: an extrapolated state must lower the fixed-point residual
                     rejected = proposal and accepted is not None and res >= accepted[1]

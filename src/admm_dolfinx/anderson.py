@@ -15,7 +15,14 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-__all__ = ["AndersonMixer"]
+__all__ = ["AndersonMixer", "weighted_norm"]
+
+
+def weighted_norm(
+    x: npt.NDArray[np.float64], weights: npt.NDArray[np.float64], comm: MPI.Comm
+) -> float:
+    """The global weighted norm sqrt(Σ w_i x_i²) of a distributed array; collective."""
+    return float(np.sqrt(comm.allreduce(float(x @ (weights * x)), op=MPI.SUM)))
 
 
 class AndersonMixer:
@@ -51,10 +58,6 @@ class AndersonMixer:
         self._dF.clear()
         self._dG.clear()
         self._last = None
-
-    def norm(self, x: npt.NDArray[np.float64]) -> float:
-        """The global weighted norm ‖x‖_W; collective."""
-        return float(np.sqrt(self.comm.allreduce(float(x @ (self.weights * x)), op=MPI.SUM)))
 
     def update(
         self, z: npt.NDArray[np.float64], Tz: npt.NDArray[np.float64]

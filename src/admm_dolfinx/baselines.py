@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from dolfinx import fem
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx.kkt import KKTResiduals, compute_kkt_residuals
@@ -58,7 +59,7 @@ def _axis_bounds(problem: ContactProblem, lower: PETSc.Vec, upper: PETSc.Vec) ->
     sign = np.sign(normals[np.arange(normals.shape[0]), axis])
     off_axis = np.abs(normals).sum(axis=1) - np.abs(sign)
     aligned = np.all(np.abs(off_axis) <= _AXIS_TOL)
-    if not problem.comm.allreduce(bool(aligned), op=_land()):
+    if not problem.comm.allreduce(bool(aligned), op=MPI.LAND):
         raise ValueError(
             "The SNES VI baseline needs axis-aligned contact normals (bound constraints); "
             "this problem has curved or tilted contact. Use the ADMM solver, or compare "
@@ -72,12 +73,6 @@ def _axis_bounds(problem: ContactProblem, lower: PETSc.Vec, upper: PETSc.Vec) ->
         pos = sign > 0
         up2[c.nodes[pos], axis[pos]] = c.gap[pos]
         lo2[c.nodes[~pos], axis[~pos]] = -c.gap[~pos]
-
-
-def _land():
-    from mpi4py import MPI
-
-    return MPI.LAND
 
 
 def solve_snes_vi(

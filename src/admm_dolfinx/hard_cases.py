@@ -15,6 +15,7 @@ from collections.abc import Callable
 import numpy as np
 from mpi4py import MPI
 
+from admm_dolfinx.meshing import global_bounds
 from admm_dolfinx.scenes import Scene, example1, example2, example3
 
 __all__ = ["CASES", "build_case", "distort", "grade"]
@@ -36,10 +37,7 @@ def distort(scene: Scene, amount: float = 0.35) -> Scene:
     copies of a node move alike on every process. Boundary nodes stay put.
     """
     x = scene.mesh.geometry.x
-    comm = scene.mesh.comm
-    lo, hi = np.empty(2), np.empty(2)
-    comm.Allreduce(np.ascontiguousarray(x[:, :2].min(axis=0)), lo, op=MPI.MIN)
-    comm.Allreduce(np.ascontiguousarray(x[:, :2].max(axis=0)), hi, op=MPI.MAX)
+    lo, hi = global_bounds(scene.mesh)[:, :2]
     interior = np.all((x[:, :2] > lo + 1e-12) & (x[:, :2] < hi - 1e-12), axis=1)
     phase = x[:, 0] * 12.9898 + x[:, 1] * 78.233
     angle = 2 * np.pi * ((np.sin(phase) * 43758.5453) % 1.0)

@@ -23,7 +23,7 @@ from petsc4py import PETSc
 if TYPE_CHECKING:
     from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["KKTResiduals", "compute_kkt_residuals"]
+__all__ = ["KKTResiduals", "compute_kkt_residuals", "gap_residuals"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +55,35 @@ def _ratio(num: float, den: float) -> float:
     return 0.0 if num == 0.0 else num / den if den > 0.0 else np.inf
 
 
+def gap_residuals(
+    problem: ContactProblem,
+    nu: npt.NDArray[np.float64],
+    lam: npt.NDArray[np.float64],
+    u_scale: float,
+) -> tuple[float, float]:
+    """Relative penetration and complementarity of (N u, λ); collective.
+
+    Args:
+        problem: The contact problem.
+        nu: N u at the owned contact nodes.
+        lam: λ at the owned contact nodes.
+        u_scale: ‖u‖_∞ (global).
+
+    Returns:
+        (max_j (N u − g)_j⁺ / ‖u‖_∞,  max_j λ_j |g_j − (N u)_j| / (‖λ‖_∞ ‖u‖_∞)).
+    """
+    gap = problem.contact.gap
+    slack = np.where(np.isfinite(gap), gap - nu, np.inf)
+    penetration = problem.global_norm(np.maximum(-slack, 0.0), np.inf)
+    with np.errstate(invalid="ignore"):
+        product = np.where(lam != 0.0, np.abs(lam) * np.abs(slack), 0.0)
+    lam_scale = problem.global_norm(lam, np.inf)
+    return (
+        _ratio(penetration, u_scale),
+        _ratio(problem.global_norm(product, np.inf), lam_scale * u_scale),
+    )
+
+
 def compute_kkt_residuals(
     problem: ContactProblem, u: PETSc.Vec, multiplier: npt.NDArray[np.float64]
 ) -> KKTResiduals:
@@ -68,19 +97,11 @@ def compute_kkt_residuals(
     Returns:
         The residuals.
     """
-    c = problem.contact
     lam = np.asarray(multiplier, dtype=np.float64)
-    nu = problem.apply_normal(u)
-    finite = np.isfinite(c.gap)
     u_scale = u.norm(PETSc.NormType.NORM_INFINITY)
     lam_scale = problem.global_norm(lam, np.inf)
-
-    slack = np.where(finite, c.gap - nu, np.inf)
-    penetration = problem.global_norm(np.maximum(-slack, 0.0), np.inf)
+    feasibility, complementarity = gap_residuals(problem, problem.apply_normal(u), lam, u_scale)
     adhesion = problem.global_norm(np.maximum(-lam, 0.0), np.inf)
-    with np.errstate(invalid="ignore"):
-        product = np.where(lam != 0.0, np.abs(lam) * np.abs(slack), 0.0)
-    comp = problem.global_norm(product, np.inf)
 
     Au = problem.create_vector()
     force = problem.create_vector()
@@ -99,8 +120,8 @@ def compute_kkt_residuals(
         force.destroy()
 
     return KKTResiduals(
-        primal_feasibility=_ratio(penetration, u_scale),
+        primal_feasibility=feasibility,
         dual_feasibility=_ratio(adhesion, lam_scale),
-        complementarity=_ratio(comp, lam_scale * u_scale),
+        complementarity=complementarity,
         equilibrium=equilibrium,
     )

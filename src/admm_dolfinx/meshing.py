@@ -19,6 +19,7 @@ __all__ = [
     "MeshData",
     "box",
     "build_on_root",
+    "global_bounds",
     "gmsh_session",
     "quarter_disc",
     "rectangle",
@@ -27,6 +28,15 @@ __all__ = [
 ]
 
 MeshData = gmshio.MeshData
+
+
+def global_bounds(msh: mesh.Mesh) -> np.ndarray:
+    """The (2, 3) array of the mesh's lower and upper corners over all ranks; collective."""
+    x = msh.geometry.x
+    lo, hi = np.empty(3), np.empty(3)
+    msh.comm.Allreduce(np.ascontiguousarray(x.min(axis=0)), lo, op=MPI.MIN)
+    msh.comm.Allreduce(np.ascontiguousarray(x.max(axis=0)), hi, op=MPI.MAX)
+    return np.vstack([lo, hi])
 
 
 def _import_gmsh():

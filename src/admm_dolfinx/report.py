@@ -11,10 +11,8 @@ from __future__ import annotations
 import os
 from typing import Any
 
-import numpy as np
-from mpi4py import MPI
-
 from admm_dolfinx.admm import ADMMResult
+from admm_dolfinx.meshing import global_bounds
 from admm_dolfinx.output import atomic_directory, write_json, write_xdmf
 from admm_dolfinx.problem import ContactProblem
 from admm_dolfinx.scenes import Scene
@@ -41,15 +39,6 @@ def result_summary(scene: Scene, problem: ContactProblem, result: ADMMResult) ->
         "kkt": result.kkt.as_dict(),
         "timings": result.timings,
     }
-
-
-def _global_bounds(problem: ContactProblem) -> np.ndarray:
-    x = problem.mesh.geometry.x
-    comm = problem.comm
-    lo, hi = np.empty(3), np.empty(3)
-    comm.Allreduce(np.ascontiguousarray(x.min(axis=0)), lo, op=MPI.MIN)
-    comm.Allreduce(np.ascontiguousarray(x.max(axis=0)), hi, op=MPI.MAX)
-    return np.vstack([lo, hi])
 
 
 def write_scene_outputs(
@@ -85,7 +74,7 @@ def write_scene_outputs(
 
     comm = problem.comm
     summary = result_summary(scene, problem, result) | dict(extra or {})
-    bounds = _global_bounds(problem)  # collective: every rank calls it
+    bounds = global_bounds(problem.mesh)  # collective: every rank calls it
     obstacle = obstacle_surface(scene.obstacle, bounds) if comm.rank == 0 else None
     with atomic_directory(comm, folder) as tmp:
         write_xdmf(tmp / "solution.xdmf", [result.u, result.pressure])
