@@ -57,7 +57,8 @@ def test_scale_invariance_E_1_to_1e9():
         radii.append(result.penalty / E)
         _check_sane(result, problem)
     assert len(set(its)) == 1, its
-    np.testing.assert_allclose(radii, radii[0], rtol=1e-8)
+    # λ_max by LOBPCG + multigrid at the default tolerance: invariant up to its error
+    np.testing.assert_allclose(radii, radii[0], rtol=1e-6)
 
 
 def test_nothing_touches_gives_the_elastic_solution():

@@ -6,7 +6,6 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx import ADMMSolver, estimate_penalty
-from admm_dolfinx.petsc import factorization_count
 from admm_dolfinx.scenes import example1, example2, example3
 
 from dense_reference import algorithm5_eigenvalues, rotated_pencil_eigenvalues
@@ -63,7 +62,10 @@ def test_floating_curved_body(level):
     est = estimate_penalty(problem, tol=TIGHT)
     assert est.details["rigid_modes"] == 1
     _compare(est, lam[0], lam[-2], 1e-6)
-    _compare(estimate_penalty(problem), lam[0], lam[-2], 0.05)
+    loose = estimate_penalty(problem)
+    _compare(loose, lam[0], lam[-2], 0.05)
+    # the multigrid λ_max does not apply to a floating body: it falls back, and says so
+    assert loose.details["lambda_max_method"] == "factorised"
     # and the ADMM converges at that r, held only by the contact
     with ADMMSolver(problem, penalty=est.r) as solver:
         result = solver.solve()
@@ -73,13 +75,13 @@ def test_floating_curved_body(level):
 
 @pytest.mark.parametrize("tol", [1e-2, 1e-8])
 def test_auto_penalty_shares_one_symbolic_factorisation(tol):
-    """Counted from PETSc's log: the whole body is analysed once; numerically it is
-    factorised at r_a and r* (and for the exact Schur complement at tight tolerance);
-    at loose tolerance each layer along Γ_C adds one small factorisation."""
+    """Counted from PETSc's log (Cholesky events): the whole body is analysed once.
+    At loose tolerance it is factorised once, at r* (λ_max by multigrid; each layer
+    along Γ_C adds one small factorisation); at tight tolerance also at r_a and for
+    the exact Schur complement."""
     problem = example1(h=1 / 16).problem()
-    sym = PETSc.Log.Event("MatCholFctrSym")
-    sym0 = sym.getPerfInfo()["count"]
-    num0 = factorization_count()
+    sym, num = PETSc.Log.Event("MatCholFctrSym"), PETSc.Log.Event("MatCholFctrNum")
+    sym0, num0 = sym.getPerfInfo()["count"], num.getPerfInfo()["count"]
     with ADMMSolver(problem, penalty_tol=tol) as solver:  # penalty="auto" is the default
         result = solver.solve()
         estimate = solver.penalty_estimate
@@ -87,17 +89,24 @@ def test_auto_penalty_shares_one_symbolic_factorisation(tol):
     steps = estimate.details["layer_steps"]
     assert (steps > 0) == (tol > 1e-6)
     assert sym.getPerfInfo()["count"] - sym0 == 1 + steps
-    assert factorization_count() - num0 == (2 if steps else 3) + steps
+    assert num.getPerfInfo()["count"] - num0 == (1 if steps else 3) + steps
+    assert estimate.details["lambda_max_method"] == ("multigrid" if steps else "factorised")
     assert result.timings["penalty"] == estimate.time
 
 
 def test_parallel_estimate_matches_serial():
     problem = example1(h=1 / 16).problem()
+    serial_problem = example1(MPI.COMM_SELF, h=1 / 16).problem()
     est = estimate_penalty(problem, tol=TIGHT)
-    serial = estimate_penalty(example1(MPI.COMM_SELF, h=1 / 16).problem(), tol=TIGHT)
+    serial = estimate_penalty(serial_problem, tol=TIGHT)
     assert est.r == pytest.approx(serial.r, rel=1e-6)
     assert est.lambda_min == pytest.approx(serial.lambda_min, rel=1e-6)
     assert est.lambda_max == pytest.approx(serial.lambda_max, rel=1e-6)
+    # default tolerance: λ_max by multigrid, whose aggregates depend on the partition
+    loose, loose_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
+    assert loose.details["lambda_max_method"] == "multigrid"
+    assert loose.r == pytest.approx(loose_serial.r, rel=1e-5)
+    serial_problem.destroy()
 
 
 @pytest.mark.parametrize("tol", [0.0, 1.0, -1e-3])
