@@ -18,6 +18,7 @@ r̄ minimises the iterations to 1e-6 over 12 penalties log-spaced in [r*/10, 10 
     python benchmarks/acceleration.py --select          # choose the defaults (α, memory)
     python benchmarks/acceleration.py                   # the README table
     python benchmarks/acceleration.py --quick           # small meshes only
+    python benchmarks/acceleration.py --only h0=0.24    # the 257k-dof 3D mesh only
 
 Writes out_benchmarks/acceleration.csv (and acceleration_select.csv).
 """
@@ -203,6 +204,9 @@ def main():
         action="store_true",
         help="grid over alpha and Anderson memory to choose the defaults",
     )
+    parser.add_argument(
+        "--only", default=None, help="run only the meshes whose name contains this text"
+    )
     parser.add_argument("--out", default="out_benchmarks")
     args = parser.parse_args()
     out = Path(args.out)
@@ -251,6 +255,8 @@ def main():
                 False,
             ),
         ]
+    if args.only:
+        meshes = [mesh for mesh in meshes if args.only in mesh[0]]
     rows = []
     for name, build, aligned, with_r_bar in meshes:
         rows += bench_mesh(name, build(), aligned, with_r_bar, VARIANTS)
