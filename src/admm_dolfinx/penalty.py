@@ -29,8 +29,10 @@ small end of the wrong operator takes hundreds):
     * at the default (loose) tolerance, LOBPCG on the full-space pencil, preconditioned
       by one algebraic-multigrid V-cycle of A + r_a K per vector and iteration
       (:mod:`admm_dolfinx.preconditioned_eigen`): no factorisation at all;
-    * at tolerances ≤ 1e-6, Krylov–Schur on M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½} with a
-      factorisation of A + r_a K: exact, and independent of the partition to round-off.
+    * at tolerances ≤ 1e-6, and for floating bodies (Rᵀ A R singular for the rigid
+      body modes R: found with a few products before any solve), Krylov–Schur on
+      M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½} with a factorisation of A + r_a K: exact, and
+      independent of the partition to round-off.
 
 λ_min needs no factorisation of the whole body at the default (loose) tolerance: its
 eigenvector is the shortest-wave contact mode, which lives within a few elements of
@@ -501,6 +503,26 @@ def _mean_diagonal(matrix: PETSc.Mat) -> float:
     return value
 
 
+def _has_rigid_motion(A: PETSc.Mat, modes: PETSc.NullSpace) -> bool:
+    """Whether a combination of the rigid body modes R costs no energy: Rᵀ A R singular.
+
+    Dirichlet rows of A hold the identity, so a motion that moves a fixed dof costs
+    energy; a floating body (free to move along Γ_C's normal) does not. Collective.
+    """
+    vectors = modes.getVecs()
+    work = A.createVecLeft()
+    gram = np.empty((len(vectors), len(vectors)))
+    for j, column in enumerate(vectors):
+        A.mult(column, work)
+        gram[:, j] = [row.dot(work) for row in vectors]
+    work.destroy()
+    scale = A.getDiagonal()
+    largest = scale.max()[1]
+    scale.destroy()
+    eigenvalues = np.linalg.eigvalsh(0.5 * (gram + gram.T))
+    return bool(eigenvalues[0] <= _RIGID_TOL * largest)
+
+
 class _NeedsFactorisation(Exception):
     """The multigrid λ_max does not apply (floating body) or did not converge."""
 
@@ -513,9 +535,12 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
     so r* does too, at the level of the eigenvalue error (≲ 1e-5 measured).
     """
     problem = space.problem
+    modes = rigid_body_modes(problem.V)
+    if _has_rigid_motion(problem.A, modes):
+        modes.destroy()
+        raise _NeedsFactorisation("the body has a rigid motion (A is singular)")
     B = problem.A.duplicate(copy=True)
     B.setOption(PETSc.Mat.Option.SPD, True)
-    modes = rigid_body_modes(problem.V)
     B.setNearNullSpace(modes)
     K_unit = problem.K.copy()
     diagonal = K_unit.getDiagonal()
@@ -526,7 +551,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
 
     def top(r_a, rigid):
         nonlocal iterations
-        if rigid:  # a floating body: A + r_a K is nearly singular for the multigrid
+        if rigid:  # a rigid motion _has_rigid_motion did not catch: deflate exactly
             raise _NeedsFactorisation("Γ_C sees a rigid motion of the body")
         problem.A.copy(B, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         B.axpy(r_a, problem.K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
