@@ -261,8 +261,10 @@ class ADMMSolver:
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
         if auto:
-            # r* is computed with this solver's own operator (factorised at an auxiliary
-            # r_a), so the factorisation at r* below reuses its symbolic analysis.
+            # r* gets this solver's own operator: at the default tolerance it factorises
+            # nothing of the whole body; where it does (tight tolerance, floating body:
+            # at an auxiliary r_a), the factorisation at r* below reuses its symbolic
+            # analysis.
             self.penalty_estimate = estimate_penalty(
                 problem,
                 tol=penalty_tol,

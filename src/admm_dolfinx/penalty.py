@@ -95,6 +95,8 @@ _MAX_RA_LAMBDA = 4.0
 _LOCAL_MAX_TOL = 1e-6
 #: θ with 1 − r_a θ below this is a rigid motion (λ = ∞).
 _RIGID_TOL = 1e-6
+#: Rᵀ A R (rigid body modes R, orthonormal) below this × max diag(A): a floating body.
+_FLOATING_TOL = 1e-10
 #: LOBPCG iterations allowed before λ_max falls back to a factorisation.
 _MULTIGRID_MAX_IT = 200
 #: LOBPCG's residual tolerance relative to the eigenvalue tolerance: the residual test
@@ -469,7 +471,7 @@ def _lambda_max_loop(lambda_min: float, top_eigenpair) -> tuple[float, dict[str,
             vec.destroy()
 
 
-def _lambda_max_factorised(space, operator, lambda_min, tol, max_it, prefix, start, vectors):
+def _lambda_max_factorised(space, operator, lambda_min, tol, max_it, prefix, start):
     """λ_max from Krylov–Schur on M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½} (eigenvalues θ).
 
     One numeric factorisation of A + r_a NᵀMN (per r_a tried) in the shared operator,
@@ -506,8 +508,9 @@ def _mean_diagonal(matrix: PETSc.Mat) -> float:
 def _has_rigid_motion(A: PETSc.Mat, modes: PETSc.NullSpace) -> bool:
     """Whether a combination of the rigid body modes R costs no energy: Rᵀ A R singular.
 
-    Dirichlet rows of A hold the identity, so a motion that moves a fixed dof costs
-    energy; a floating body (free to move along Γ_C's normal) does not. Collective.
+    A rigid motion that moves a Dirichlet dof strains the elements there (energy of
+    order E/n for orthonormal R and n dofs); a free one costs round-off (≈ 1e-16 E).
+    The threshold 1e-10 × max diag(A) separates the two for any practical n. Collective.
     """
     vectors = modes.getVecs()
     work = A.createVecLeft()
@@ -520,7 +523,7 @@ def _has_rigid_motion(A: PETSc.Mat, modes: PETSc.NullSpace) -> bool:
     largest = scale.max()[1]
     scale.destroy()
     eigenvalues = np.linalg.eigvalsh(0.5 * (gram + gram.T))
-    return bool(eigenvalues[0] <= _RIGID_TOL * largest)
+    return bool(eigenvalues[0] <= _FLOATING_TOL * largest)
 
 
 class _NeedsFactorisation(Exception):
@@ -551,7 +554,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
 
     def top(r_a, rigid):
         nonlocal iterations
-        if rigid:  # a rigid motion _has_rigid_motion did not catch: deflate exactly
+        if rigid:  # a rigid motion _has_rigid_motion missed: the factorised path deflates it
             raise _NeedsFactorisation("Γ_C sees a rigid motion of the body")
         problem.A.copy(B, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         B.axpy(r_a, problem.K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
@@ -658,7 +661,7 @@ def estimate_penalty(
                     logger.info("λ_max by factorisation instead of multigrid: %s", reason)
             if info is None:
                 lambda_max, info = _lambda_max_factorised(
-                    space, operator, lambda_min, tol, max_it, prefix, start, vectors
+                    space, operator, lambda_min, tol, max_it, prefix, start
                 )
             details.update(info, time_max=time.perf_counter() - t0)
     finally:
