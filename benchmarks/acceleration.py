@@ -26,12 +26,12 @@ Writes out_benchmarks/acceleration.csv (and acceleration_select.csv).
 from __future__ import annotations
 
 import argparse
-import csv
 import time
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
+from tables import print_and_save
 
 import admm_dolfinx
 from admm_dolfinx.admm import ADMMConvergenceError
@@ -176,24 +176,9 @@ def bench_mesh(name, scene, axis_aligned, with_r_bar, variants):
 
 
 def write_table(rows, path):
-    if COMM.rank != 0 or not rows:
-        return
-    keys = list(rows[0])
-    for row in rows:
-        for k in row:
-            if k not in keys:
-                keys.append(k)
-    print("\n| " + " | ".join(keys) + " |")
-    print("|" + "---|" * len(keys))
-    for row in rows:
-        print("| " + " | ".join(str(row.get(k, "")) for k in keys) + " |")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    with tmp.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
-    tmp.replace(path)
+    if COMM.rank == 0:
+        print()
+        print_and_save(rows, path)
 
 
 def main():

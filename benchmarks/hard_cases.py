@@ -11,11 +11,11 @@ whether anything was NaN. Writes out_benchmarks/hard_cases.csv.
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
+from tables import print_and_save
 
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver
 from admm_dolfinx.hard_cases import CASES, build_case
@@ -61,17 +61,7 @@ def main():
         )
         problem.destroy()
     if comm.rank == 0:
-        keys = list(rows[0])
-        print("| " + " | ".join(keys) + " |")
-        print("|" + "---|" * len(keys))
-        for row in rows:
-            print("| " + " | ".join(str(row[k]) for k in keys) + " |")
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        with (out / "hard_cases.csv").open("w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(rows)
+        print_and_save(rows, Path(args.out) / "hard_cases.csv")
 
 
 if __name__ == "__main__":

@@ -11,11 +11,11 @@ against Hertz's).
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
+from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver
 from admm_dolfinx.plotting import plot_contact_pressure
@@ -61,23 +61,12 @@ def main():
     scene, problem, result = last
     if comm.rank == 0:
         a, p0 = scene.info["a"], scene.info["p0"]
-        keys = list(rows[-1])
         print(
             f"Hertz: R = {scene.info['radius']}, a = {a:.4g}, p0 = {p0:.5g}, "
             f"E = {scene.info['E']}, ν = {scene.info['nu']}\n"
         )
-        print("| " + " | ".join(keys) + " |")
-        print("|" + "---|" * len(keys))
-        for row in rows:
-            print("| " + " | ".join(str(row.get(k, "–")) for k in keys) + " |")
+        print_and_save(rows, Path(args.out) / "hertz_validation.csv")
         print(f"\nfitted L2 rate over levels 0-3: {observed_rate(h[:4], l2[:4]):.2f}")
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        with (out / ".hertz_validation.tmp").open("w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(rows)
-        (out / ".hertz_validation.tmp").replace(out / "hertz_validation.csv")
     # the finest profile against Hertz's (analytic values at the same nodes)
     xc = problem.contact.coordinates[:, 0]
     a, p0 = scene.info["a"], scene.info["p0"]

@@ -15,12 +15,12 @@ Writes out_benchmarks/penalty_accuracy.csv.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
+from tables import print_and_save
 
 import admm_dolfinx
 from admm_dolfinx.scenes import example1, example2, example3
@@ -71,19 +71,7 @@ def main():
                 }
             )
         problem.destroy()
-    keys = list(rows[0])
-    print("| " + " | ".join(keys) + " |")
-    print("|" + "---|" * len(keys))
-    for row in rows:
-        print("| " + " | ".join(str(row[k]) for k in keys) + " |")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / ".penalty_accuracy.csv.tmp"
-    with tmp.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
-    tmp.replace(out / "penalty_accuracy.csv")
+    print_and_save(rows, Path(args.out) / "penalty_accuracy.csv")
 
 
 if __name__ == "__main__":

@@ -19,11 +19,11 @@ written to ``out_benchmarks/penalty_cost.csv``. Each measurement is the best of
 from __future__ import annotations
 
 import argparse
-import csv
 import time
 from pathlib import Path
 
 from mpi4py import MPI
+from tables import print_and_save
 
 import admm_dolfinx
 from admm_dolfinx.scenes import example1, example3
@@ -102,19 +102,7 @@ def main():
     )
     rows = [measure(name, build(), args.repeat) for name, build in cases]
     if MPI.COMM_WORLD.rank == 0:
-        keys = list(rows[0])
-        print("| " + " | ".join(keys) + " |")
-        print("|" + "---|" * len(keys))
-        for row in rows:
-            print("| " + " | ".join(str(row[k]) for k in keys) + " |")
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        tmp = out / ".penalty_cost.csv.tmp"
-        with tmp.open("w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(rows)
-        tmp.replace(out / "penalty_cost.csv")
+        print_and_save(rows, Path(args.out) / "penalty_cost.csv")
 
 
 if __name__ == "__main__":

@@ -5,8 +5,10 @@ the whole body: a global quantity, so some global solver is unavoidable, but it 
 not be a factorisation. LOBPCG (Knyazev's locally optimal block preconditioned
 conjugate gradient, SLEPc ``EPSLOBPCG``) maximises the Rayleigh quotient xᵀKx / xᵀBx
 with one smoothed-aggregation AMG V-cycle (PETSc ``PCGAMG``, with the rigid body
-modes as near null space) per block vector and iteration. Its Ritz value converges
-quadratically in the residual, so a residual tolerance τ gives θ to about τ².
+modes as near null space) per block vector and iteration. Its Ritz value's error is
+of the order of the squared residual over the gap to the next eigenvalue; with a
+nearly multiple top eigenvalue (symmetric bodies) a loose residual test can stop
+near the second one, so callers ask for a residual well below their θ tolerance.
 
 B must be symmetric positive definite and K symmetric positive semi-definite.
 """
@@ -85,7 +87,7 @@ def largest_generalized_eigenpair(
         K: Symmetric positive semi-definite matrix.
         B: Symmetric positive definite matrix; its near null space (rigid body modes)
             should be set for the multigrid.
-        tol: Relative residual tolerance (θ is then accurate to about tol²).
+        tol: Relative residual tolerance (SLEPc ``eps_tol``).
         max_it: Maximum LOBPCG iterations.
         prefix: Options prefix of the EPS; the multigrid (``PCGAMG``) reads options
             under ``{prefix}amg_``.
