@@ -124,3 +124,14 @@ def test_bad_solver_options(options, message):
     problem = example1(h=1 / 8, mesher="builtin").problem()
     with pytest.raises(ValueError, match=message):
         ADMMSolver(problem, penalty=1.0, **options)
+
+
+def test_solver_package_options_reach_the_factorisation():
+    """MUMPS reads its options when it factorises: they must still be set then."""
+    problem = example1(h=1 / 8).problem()
+    options = {"mat_mumps_icntl_14": 77}
+    with ADMMSolver(problem, penalty=3000.0, petsc_options=options) as solver:
+        factor = solver.operator.ksp.getPC().getFactorMatrix()
+        assert factor.getMumpsIcntl(14) == 77
+        solver.set_penalty(4000.0)  # a numeric refactorisation keeps them
+        assert solver.operator.ksp.getPC().getFactorMatrix().getMumpsIcntl(14) == 77

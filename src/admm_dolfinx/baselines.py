@@ -23,7 +23,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx.kkt import KKTResiduals, compute_kkt_residuals
-from admm_dolfinx.petsc import apply_options, unique_prefix
+from admm_dolfinx.petsc import prefixed_options, unique_prefix
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["BaselineResult", "solve_snes_vi"]
@@ -136,14 +136,17 @@ def solve_snes_vi(
             "pc_factor_mat_solver_type": "mumps",
             **dict(petsc_options or {}),
         }
-        apply_options(snes, prefix, options)
         if initial_guess is None:
             x.set(0.0)
         else:
             initial_guess.copy(x)
-        t0 = time.perf_counter()
-        snes.solve(None, x)
-        elapsed = time.perf_counter() - t0
+        snes.setOptionsPrefix(prefix)
+        # the reduced systems are factorised inside the solve: keep the options until then
+        with prefixed_options(prefix, options):
+            snes.setFromOptions()
+            t0 = time.perf_counter()
+            snes.solve(None, x)
+            elapsed = time.perf_counter() - t0
         reason = snes.getConvergedReason()
         if reason <= 0:
             raise RuntimeError(f"SNES VI did not converge (reason {reason}).")

@@ -69,16 +69,16 @@ class PenalisedOperator:
                 A.copy(self.matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
             self.matrix.axpy(r, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             self.timings["operator"] = time.perf_counter() - t0
-        self._ensure_ksp()
         with Timer("admm_dolfinx: factorisation"):
             t0 = time.perf_counter()
+            self._ensure_ksp()
             self.ksp.setUp()
             self.timings["factorization"] = time.perf_counter() - t0
         self.penalty = float(r)
         self._label = f"A + r NᵀMN at r = {r:.6g}"
 
     def _ensure_ksp(self) -> None:
-        """Create the KSP, or tell it that the matrix values changed (refactor now)."""
+        """Create the KSP (factorising), or tell it that the matrix values changed."""
         if self.ksp is None:
             self.ksp = create_factor_solver(self.matrix, self.prefix, self._options)
         else:
@@ -99,8 +99,8 @@ class PenalisedOperator:
             self.matrix.setOption(PETSc.Mat.Option.SPD, True)
         self.matrix.zeroEntries()
         self.matrix.axpy(1.0, values, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        self._ensure_ksp()
         with Timer(f"admm_dolfinx: factorisation ({label})"):
+            self._ensure_ksp()
             self.ksp.setUp()
         self.penalty = float("nan")
         self._label = label

@@ -8,8 +8,9 @@ again, so nothing leaks into the global options database (the pattern of
 
 from __future__ import annotations
 
+import contextlib
 import itertools
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from petsc4py import PETSc
@@ -19,6 +20,7 @@ __all__ = [
     "apply_options",
     "create_factor_solver",
     "factorization_count",
+    "prefixed_options",
     "unique_prefix",
 ]
 
@@ -45,32 +47,58 @@ def unique_prefix(stem: str) -> str:
     return f"{stem}{next(_counter)}_"
 
 
-def apply_options(obj: Any, prefix: str, options: Mapping[str, Any] | None) -> None:
+@contextlib.contextmanager
+def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator[None]:
+    """Put ``options`` in PETSc's database under ``prefix`` for the ``with`` block only.
+
+    Args:
+        prefix: Options prefix.
+        options: Option names without prefix (``{"pc_type": "lu"}``) and values;
+            ``None`` values set a flag.
+    """
+    opts = PETSc.Options()
+    options = dict(options or {})
+    for key, value in options.items():
+        opts[f"{prefix}{key}"] = value
+    try:
+        yield
+    finally:
+        for key in options:
+            del opts[f"{prefix}{key}"]
+
+
+def apply_options(
+    obj: Any, prefix: str, options: Mapping[str, Any] | None, *, setup: bool = False
+) -> None:
     """Set ``obj``'s prefix, push ``options`` under it, call ``setFromOptions``, clean up.
+
+    Some options are read only when the object is set up (MUMPS's ``mat_mumps_*``, a
+    multigrid's level smoothers); pass ``setup=True`` to call ``setUp`` while they are
+    still in the database, or they would be silently ignored (objects that set up
+    inside their solve use :func:`prefixed_options` around it instead).
 
     Args:
         obj: A PETSc object with ``setOptionsPrefix`` and ``setFromOptions``.
         prefix: Options prefix for ``obj``.
         options: Option names without prefix (``{"pc_type": "lu"}``) and values;
             ``None`` values set a flag.
+        setup: Call ``obj.setUp()`` before the options are removed.
     """
-    opts = PETSc.Options()
     obj.setOptionsPrefix(prefix)
-    options = dict(options or {})
-    for key, value in options.items():
-        opts[f"{prefix}{key}"] = value
-    obj.setFromOptions()
-    for key in options:
-        del opts[f"{prefix}{key}"]
+    with prefixed_options(prefix, options):
+        obj.setFromOptions()
+        if setup:
+            obj.setUp()
 
 
 def create_factor_solver(
     A: PETSc.Mat, prefix: str, options: Mapping[str, Any] | None = None
 ) -> PETSc.KSP:
-    """Create a KSP that factorises ``A`` (MUMPS Cholesky unless overridden).
+    """Create a KSP that factorises ``A`` (MUMPS Cholesky unless overridden), now.
 
-    The factorisation happens at the first ``setUp``/``solve`` and is reused until the
-    values of ``A`` change.
+    ``A`` must hold its values: it is factorised here, while the options (including
+    the solver package's, e.g. ``mat_mumps_icntl_14``) are in the database. The
+    factorisation is reused until the values of ``A`` change.
 
     Args:
         A: Symmetric positive definite operator.
@@ -83,7 +111,7 @@ def create_factor_solver(
     ksp = PETSc.KSP().create(A.getComm())
     ksp.setOperators(A)
     merged = {**DEFAULT_FACTOR_OPTIONS, **dict(options or {})}
-    apply_options(ksp, prefix, merged)
+    apply_options(ksp, prefix, merged, setup=True)
     return ksp
 
 
