@@ -6,9 +6,10 @@ non-zero eigenvalues of A⁻¹NᵀMN, i.e. of the m × m pencil on the contact d
     M w = λ S w,     S = Schur complement of A onto the contact normal dofs,
 
 so the best fixed r balances the two extremes: r* = 1/sqrt(λ_min λ_max).  Each
-extreme is computed as the *largest* eigenvalue of a symmetric m × m operator with
-SLEPc's Krylov–Schur (the large end converges in tens of applications; asking for the
-small end of the wrong operator takes hundreds):
+extreme is computed as the *largest* eigenvalue of a symmetric operator (the large
+end converges in tens of applications; asking for the small end of the wrong
+operator takes hundreds): an m × m one with SLEPc's Krylov–Schur, or, for λ_max at
+the default tolerance, the full-space pencil with LOBPCG:
 
 λ_min = 1 / μ_max,  μ_max = largest eigenvalue of M^{-½} S M^{-½}.
     S x is the reaction of the body when its contact normal displacements are
