@@ -65,6 +65,7 @@ from typing import Any
 
 import numpy as np
 from dolfinx.common import Timer
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
@@ -274,6 +275,28 @@ def _has_rigid_motion(A: PETSc.Mat, modes: PETSc.NullSpace) -> bool:
     return bool(eigenvalues[0] <= _FLOATING_TOL * largest)
 
 
+def _affine_pressure_loads(space: ContactSpace) -> list[PETSc.Vec]:
+    """Nodal forces Nᵀ M q for the normal pressures q = 1, x, y (, z) on Γ_C; collective.
+
+    The smoothest contact modes (the top of the λ spectrum: uniform push, tilts) are
+    close to the body's responses to these; LOBPCG starts from their Ritz vectors.
+    """
+    problem, c = space.problem, space.problem.contact
+    coords = c.coordinates[:, : problem.gdim]
+    lower = np.empty(problem.gdim)
+    upper = np.empty(problem.gdim)
+    problem.comm.Allreduce(coords.min(axis=0, initial=np.inf), lower, op=MPI.MIN)
+    problem.comm.Allreduce(coords.max(axis=0, initial=-np.inf), upper, op=MPI.MAX)
+    centred = (coords - 0.5 * (lower + upper)) / np.maximum(upper - lower, 1e-300).max()
+    pressures = [np.ones(space.m_local), *centred.T]
+    loads = []
+    for q in pressures:
+        vec = problem.create_vector()
+        space.map.scatter(q, vec, c.mass)
+        loads.append(vec)
+    return loads
+
+
 class _NeedsFactorisation(Exception):
     """The multigrid λ_max does not apply (floating body) or did not converge."""
 
@@ -298,6 +321,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
     k_scale = diagonal.max()[1]
     diagonal.destroy()
     K_unit.scale(1.0 / k_scale)
+    loads = _affine_pressure_loads(space)
     iterations = 0
 
     def top(r_a, rigid):
@@ -317,6 +341,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
             tol=tol * _MULTIGRID_TOL,
             max_it=min(max_it, _MULTIGRID_MAX_IT),
             prefix=prefix + "lmax_",
+            trial_loads=loads,
         )
         iterations += its
         return theta * k_scale / b_scale, vec, its
@@ -326,7 +351,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
     except RuntimeError as error:  # LOBPCG did not converge
         raise _NeedsFactorisation(str(error)) from error
     finally:
-        for obj in (B, K_unit, modes):
+        for obj in (B, K_unit, modes, *loads):
             obj.destroy()
     info.update(
         solves_max=iterations * lobpcg_block_size(),

@@ -15,6 +15,7 @@ B must be symmetric positive definite and K symmetric positive semi-definite.
 
 from __future__ import annotations
 
+import numpy as np
 from dolfinx import fem, la
 from petsc4py import PETSc
 from slepc4py import SLEPc
@@ -78,7 +79,7 @@ def largest_generalized_eigenpair(
     tol: float,
     max_it: int,
     prefix: str,
-    start: PETSc.Vec | None = None,
+    trial_loads: list[PETSc.Vec] | None = None,
     deflation: list[PETSc.Vec] | None = None,
 ) -> tuple[float, PETSc.Vec, int]:
     """Largest θ with K x = θ B x, by LOBPCG preconditioned with AMG on B; collective.
@@ -91,7 +92,9 @@ def largest_generalized_eigenpair(
         max_it: Maximum LOBPCG iterations.
         prefix: Options prefix of the EPS; the multigrid (``PCGAMG``) reads options
             under ``{prefix}amg_``.
-        start: Initial vector (a copy is used).
+        trial_loads: Right-hand sides f_i whose responses T f_i (one V-cycle each)
+            should contain the top eigenvector well; the best block-size combinations
+            of them (Rayleigh–Ritz) start LOBPCG. Random vectors otherwise.
         deflation: Vectors whose B-orthogonal complement is searched.
 
     Returns:
@@ -101,7 +104,7 @@ def largest_generalized_eigenpair(
         RuntimeError: If LOBPCG does not converge within ``max_it`` iterations.
     """
     eps = SLEPc.EPS().create(comm=B.getComm())
-    multigrid = None
+    multigrid, start = None, []
     try:
         eps.setOperators(K, B)
         eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
@@ -123,8 +126,9 @@ def largest_generalized_eigenpair(
         ksp.getPC().setPythonContext(_ColumnByColumn(multigrid))
         if deflation:
             eps.setDeflationSpace(deflation)
-        if start is not None:
-            eps.setInitialSpace([start])
+        start = _ritz_start(K, B, multigrid, trial_loads) if trial_loads else []
+        if start:
+            eps.setInitialSpace(start)
         apply_options(eps, prefix, {})
         eps.solve()
         if eps.getConverged() < 1:
@@ -138,9 +142,50 @@ def largest_generalized_eigenpair(
         theta = eps.getEigenpair(0, vec).real
         return theta, vec, eps.getIterationNumber()
     finally:
+        for v in start:
+            v.destroy()
         eps.destroy()
         if multigrid is not None:
             multigrid.destroy()
+
+
+def _ritz_start(K, B, multigrid, loads) -> list[PETSc.Vec]:
+    """The top block-size Ritz vectors of (K, B) in span{T f_i}; collective.
+
+    Global inner products only (Vec.dot), so the result is independent of the
+    partition up to the multigrid's own dependence.
+    """
+    multigrid.setUp()
+    responses = []
+    for load in loads:
+        response = B.createVecRight()
+        multigrid.apply(load, response)
+        responses.append(response)
+    work = B.createVecLeft()
+    k = len(responses)
+    gram_k, gram_b = np.empty((k, k)), np.empty((k, k))
+    for j, column in enumerate(responses):
+        K.mult(column, work)
+        gram_k[:, j] = [row.dot(work) for row in responses]
+        B.mult(column, work)
+        gram_b[:, j] = [row.dot(work) for row in responses]
+    work.destroy()
+    # drop dependent responses (e.g. a load that vanishes on this Γ_C), then Ritz
+    scale = np.sqrt(np.maximum(np.diag(gram_b), np.finfo(float).tiny))
+    gram_k, gram_b = gram_k / np.outer(scale, scale), gram_b / np.outer(scale, scale)
+    values, vectors = np.linalg.eigh(0.5 * (gram_b + gram_b.T))
+    keep = values > 1e-10 * values.max()
+    basis = vectors[:, keep] / np.sqrt(values[keep])
+    reduced = basis.T @ (0.5 * (gram_k + gram_k.T)) @ basis
+    ritz = basis @ np.linalg.eigh(reduced)[1][:, ::-1][:, :_BLOCK_SIZE] / scale[:, None]
+    start = []
+    for coefficients in ritz.T:
+        vec = B.createVecRight()
+        vec.maxpy(coefficients, responses)
+        start.append(vec)
+    for response in responses:
+        response.destroy()
+    return start
 
 
 def block_size() -> int:
