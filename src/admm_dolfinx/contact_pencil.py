@@ -23,7 +23,12 @@ from petsc4py import PETSc
 from slepc4py import SLEPc
 
 from admm_dolfinx.operators import PenalisedOperator
-from admm_dolfinx.petsc import apply_options, check_solve, create_factor_solver
+from admm_dolfinx.petsc import (
+    apply_options,
+    check_solve,
+    create_factor_solver,
+    solve_top_eigenpair,
+)
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = [
@@ -215,8 +220,7 @@ class LocalSolver:
     """A factorised small matrix (the projected stiffness of a layer along Γ_C)."""
 
     def __init__(self, matrix: PETSc.Mat, prefix: str, options: dict | None):
-        self.ksp = create_factor_solver(matrix, prefix, options)
-        self.ksp.setUp()
+        self.ksp = create_factor_solver(matrix, prefix, options)  # factorises
         self.solves = 0
 
     def solve(self, b, x):
@@ -285,16 +289,14 @@ def largest_eigenvalue(
             eps.setDeflationSpace(deflation)
         eps.setInitialSpace([start])
         apply_options(eps, prefix, {})
-        eps.solve()
-        if eps.getConverged() < 1:
-            raise RuntimeError(
-                f"SLEPc did not converge to the extreme eigenvalue of the contact pencil "
-                f"within {max_it} restarts (tol {tol:g}, reason {eps.getConvergedReason()}). "
-                "Loosen penalty_tol or give the penalty explicitly."
-            )
-        vec = space.create_vec()
-        value = eps.getEigenpair(0, vec).real
-        return value, vec, eps.getIterationNumber()
+        value, vec, its = solve_top_eigenpair(
+            eps,
+            space.create_vec,
+            f"SLEPc did not converge to the extreme eigenvalue of the contact pencil "
+            f"within {max_it} restarts (tol {tol:g}). Loosen penalty_tol or give the "
+            "penalty explicitly",
+        )
+        return value, vec, its
     finally:
         eps.destroy()
         mat.destroy()

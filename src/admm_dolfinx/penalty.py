@@ -82,8 +82,12 @@ from admm_dolfinx.contact_pencil import (
 )
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.petsc import unique_prefix
-from admm_dolfinx.preconditioned_eigen import block_size as lobpcg_block_size
-from admm_dolfinx.preconditioned_eigen import largest_generalized_eigenpair, rigid_body_modes
+from admm_dolfinx.preconditioned_eigen import (
+    BLOCK_SIZE,
+    gram_matrix,
+    largest_generalized_eigenpair,
+    rigid_body_modes,
+)
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["DEFAULT_PENALTY_TOL", "PenaltyEstimate", "estimate_penalty"]
@@ -261,13 +265,7 @@ def _has_rigid_motion(A: PETSc.Mat, modes: PETSc.NullSpace) -> bool:
     order E/n for orthonormal R and n dofs); a free one costs round-off (≈ 1e-16 E).
     The threshold 1e-10 × max diag(A) separates the two for any practical n. Collective.
     """
-    vectors = modes.getVecs()
-    work = A.createVecLeft()
-    gram = np.empty((len(vectors), len(vectors)))
-    for j, column in enumerate(vectors):
-        A.mult(column, work)
-        gram[:, j] = [row.dot(work) for row in vectors]
-    work.destroy()
+    gram = gram_matrix(A, modes.getVecs())
     scale = A.getDiagonal()
     largest = scale.max()[1]
     scale.destroy()
@@ -354,7 +352,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
         for obj in (B, K_unit, modes, *loads):
             obj.destroy()
     info.update(
-        solves_max=iterations * lobpcg_block_size(),
+        solves_max=iterations * BLOCK_SIZE,
         lobpcg_iterations=iterations,
         lambda_max_method="multigrid",
     )

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from petsc4py import PETSc
@@ -21,6 +21,7 @@ __all__ = [
     "create_factor_solver",
     "factorization_count",
     "prefixed_options",
+    "solve_top_eigenpair",
     "unique_prefix",
 ]
 
@@ -148,3 +149,26 @@ def check_solve(ksp: PETSc.KSP, what: str) -> None:
             "has a rigid motion that neither the Dirichlet conditions nor the contact "
             "normals restrain."
         )
+
+
+def solve_top_eigenpair(
+    eps: Any, create_vec: Callable[[], PETSc.Vec], failure: str
+) -> tuple[float, PETSc.Vec, int]:
+    """Run a configured SLEPc EPS and return its first eigenpair; collective.
+
+    Args:
+        eps: The eigensolver, operators and options set.
+        create_vec: Makes the vector that receives the eigenvector (only on success).
+        failure: What to tell the user if nothing converged (the reason is appended).
+
+    Returns:
+        The eigenvalue, the eigenvector (the caller destroys it), the iteration count.
+
+    Raises:
+        RuntimeError: If no eigenpair converged.
+    """
+    eps.solve()
+    if eps.getConverged() < 1:
+        raise RuntimeError(f"{failure} (SLEPc reason {eps.getConvergedReason()}).")
+    vec = create_vec()
+    return eps.getEigenpair(0, vec).real, vec, eps.getIterationNumber()

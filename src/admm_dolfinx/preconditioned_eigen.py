@@ -20,13 +20,13 @@ from dolfinx import fem, la
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
-from admm_dolfinx.petsc import apply_options
+from admm_dolfinx.petsc import apply_options, solve_top_eigenpair
 
-__all__ = ["largest_generalized_eigenpair", "rigid_body_modes"]
+__all__ = ["BLOCK_SIZE", "gram_matrix", "largest_generalized_eigenpair", "rigid_body_modes"]
 
 #: LOBPCG block size: two vectors resolve a nearly double top eigenvalue (symmetric
 #: bodies) at the cost of two V-cycles per iteration; measured faster than 1 or 4.
-_BLOCK_SIZE = 2
+BLOCK_SIZE = 2
 
 
 def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
@@ -111,7 +111,7 @@ def largest_generalized_eigenpair(
         eps.setType(SLEPc.EPS.Type.LOBPCG)
         eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
         eps.setDimensions(nev=1)
-        eps.setLOBPCGBlockSize(_BLOCK_SIZE)
+        eps.setLOBPCGBlockSize(BLOCK_SIZE)
         eps.setTolerances(tol=tol, max_it=max_it)
         st = eps.getST()
         st.setType(SLEPc.ST.Type.PRECOND)
@@ -130,23 +130,31 @@ def largest_generalized_eigenpair(
         if start:
             eps.setInitialSpace(start)
         apply_options(eps, prefix, {})
-        eps.solve()
-        if eps.getConverged() < 1:
-            raise RuntimeError(
-                f"LOBPCG did not converge to the largest eigenvalue of the contact pencil "
-                f"within {max_it} iterations (tol {tol:g}, reason "
-                f"{eps.getConvergedReason()}). Loosen penalty_tol, give the penalty "
-                f"explicitly, or tune the multigrid with -{prefix}amg_pc_gamg_* options."
-            )
-        vec = B.createVecRight()
-        theta = eps.getEigenpair(0, vec).real
-        return theta, vec, eps.getIterationNumber()
+        theta, vec, its = solve_top_eigenpair(
+            eps,
+            B.createVecRight,
+            f"LOBPCG did not converge to the largest eigenvalue of the contact pencil "
+            f"within {max_it} iterations (tol {tol:g}). Loosen penalty_tol, give the "
+            f"penalty explicitly, or tune the multigrid with -{prefix}amg_pc_gamg_* options",
+        )
+        return theta, vec, its
     finally:
         for v in start:
             v.destroy()
         eps.destroy()
         if multigrid is not None:
             multigrid.destroy()
+
+
+def gram_matrix(matrix: PETSc.Mat, vectors: list[PETSc.Vec]) -> np.ndarray:
+    """G_ij = v_iᵀ M v_j (global inner products); collective."""
+    work = matrix.createVecLeft()
+    gram = np.empty((len(vectors), len(vectors)))
+    for j, column in enumerate(vectors):
+        matrix.mult(column, work)
+        gram[:, j] = [row.dot(work) for row in vectors]
+    work.destroy()
+    return gram
 
 
 def _ritz_start(K, B, multigrid, loads) -> list[PETSc.Vec]:
@@ -161,15 +169,7 @@ def _ritz_start(K, B, multigrid, loads) -> list[PETSc.Vec]:
         response = B.createVecRight()
         multigrid.apply(load, response)
         responses.append(response)
-    work = B.createVecLeft()
-    k = len(responses)
-    gram_k, gram_b = np.empty((k, k)), np.empty((k, k))
-    for j, column in enumerate(responses):
-        K.mult(column, work)
-        gram_k[:, j] = [row.dot(work) for row in responses]
-        B.mult(column, work)
-        gram_b[:, j] = [row.dot(work) for row in responses]
-    work.destroy()
+    gram_k, gram_b = gram_matrix(K, responses), gram_matrix(B, responses)
     # drop dependent responses (e.g. a load that vanishes on this Γ_C), then Ritz
     scale = np.sqrt(np.maximum(np.diag(gram_b), np.finfo(float).tiny))
     gram_k, gram_b = gram_k / np.outer(scale, scale), gram_b / np.outer(scale, scale)
@@ -177,7 +177,7 @@ def _ritz_start(K, B, multigrid, loads) -> list[PETSc.Vec]:
     keep = values > 1e-10 * values.max()
     basis = vectors[:, keep] / np.sqrt(values[keep])
     reduced = basis.T @ (0.5 * (gram_k + gram_k.T)) @ basis
-    ritz = basis @ np.linalg.eigh(reduced)[1][:, ::-1][:, :_BLOCK_SIZE] / scale[:, None]
+    ritz = basis @ np.linalg.eigh(reduced)[1][:, ::-1][:, :BLOCK_SIZE] / scale[:, None]
     start = []
     for coefficients in ritz.T:
         vec = B.createVecRight()
@@ -186,8 +186,3 @@ def _ritz_start(K, B, multigrid, loads) -> list[PETSc.Vec]:
     for response in responses:
         response.destroy()
     return start
-
-
-def block_size() -> int:
-    """Vectors per LOBPCG iteration (each costs one V-cycle)."""
-    return _BLOCK_SIZE
