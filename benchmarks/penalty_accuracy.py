@@ -30,7 +30,7 @@ from dense_reference import algorithm5_eigenvalues, rotated_pencil_eigenvalues
 
 CASES = [
     *[(f"example1 h=1/{n}", (lambda n=n: example1(h=1 / n)), True) for n in (8, 16, 32, 64)],
-    *[(f"example3 level {k}", (lambda k=k: example3(level=k)), True) for k in (0, 1)],
+    *[(f"example3 level {k}", (lambda k=k: example3(level=k)), True) for k in (0, 1, 2)],
     *[(f"hertz level {k}", (lambda k=k: example2(level=k)), False) for k in (0, 1)],
 ]
 
