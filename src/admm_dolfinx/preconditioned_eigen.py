@@ -8,7 +8,7 @@ with one smoothed-aggregation AMG V-cycle (PETSc ``PCGAMG``, with the rigid body
 modes as near null space) per block vector and iteration. Its Ritz value's error is
 of the order of the squared residual over the gap to the next eigenvalue; with a
 nearly multiple top eigenvalue (symmetric bodies) a loose residual test can stop
-near the second one, so callers ask for a residual well below their θ tolerance.
+near the second one, so callers ask for a residual below their θ tolerance.
 
 B must be symmetric positive definite and K symmetric positive semi-definite.
 """
