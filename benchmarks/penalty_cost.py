@@ -9,9 +9,9 @@ For each problem, in one run and side by side:
   estimate shares the symbolic factorisation with the ADMM.
 
 The ratios estimate/admm and (auto − admm)/admm are printed as a markdown table and
-written to ``out_benchmarks/penalty_cost.csv``. Each measurement is the best of
-``--repeat`` runs, and of more while they take under 2 s in all (the machines are
-noisy). Run:
+written to ``out_benchmarks/penalty_cost.csv``. Each time is the best of
+``--repeat`` interleaved rounds (one call of each per round), and of more rounds while
+they take under 2 s in all (the machines are noisy). Run:
 
     python benchmarks/penalty_cost.py            # Example 1 h=1/64, Example 3 level 3
     python benchmarks/penalty_cost.py --quick    # small sizes, for a smoke test
@@ -30,25 +30,37 @@ import admm_dolfinx
 from admm_dolfinx.scenes import example1, example3
 
 
-def best_of(repeat, fn, min_time=2.0):
-    """Fastest of at least ``repeat`` runs, and of as many more as fit in ``min_time``
-    seconds: a 0.1 s solve varies by 50 % between runs on a noisy machine."""
-    times, value = [], None
-    while len(times) < repeat or sum(times) < min_time:
-        MPI.COMM_WORLD.Barrier()
-        t0 = time.perf_counter()
-        value = fn()
-        times.append(MPI.COMM_WORLD.allreduce(time.perf_counter() - t0, op=MPI.MAX))
-    return min(times), value
+def timed(fn):
+    """(seconds, value) of one call, the slowest rank's time."""
+    MPI.COMM_WORLD.Barrier()
+    t0 = time.perf_counter()
+    value = fn()
+    return MPI.COMM_WORLD.allreduce(time.perf_counter() - t0, op=MPI.MAX), value
+
+
+def best_of_rounds(repeat, functions, min_time=2.0):
+    """Fastest time of each function, measured in interleaved rounds (one call of each
+    per round): at least ``repeat`` rounds, and more while they took under
+    ``min_time`` seconds in all. Interleaving keeps slow phases of a noisy machine
+    from favouring one of them (a 0.1 s solve varied by 50 % between runs here)."""
+    best = {name: (float("inf"), None) for name in functions}
+    rounds, spent = 0, 0.0
+    while rounds < repeat or spent < min_time:
+        for name, fn in functions.items():
+            seconds, value = timed(fn)
+            spent += seconds
+            if seconds < best[name][0]:
+                best[name] = (seconds, value)
+        rounds += 1
+    return best
 
 
 def measure(name, scene, repeat):
     problem = scene.problem()
+    est = admm_dolfinx.estimate_penalty(problem)  # r*, for the solves at a given r
 
     def estimate():
         return admm_dolfinx.estimate_penalty(problem)
-
-    t_est, est = best_of(repeat, estimate)
 
     def admm():
         with admm_dolfinx.ADMMSolver(problem, penalty=est.r, mode="paper") as solver:
@@ -62,9 +74,13 @@ def measure(name, scene, repeat):
         with admm_dolfinx.ADMMSolver(problem, mode="paper") as solver:
             return solver.solve()
 
-    t_admm, res = best_of(repeat, admm)
-    t_fast, res_fast = best_of(repeat, admm_fast)
-    t_auto, _ = best_of(repeat, auto)
+    best = best_of_rounds(
+        repeat, {"estimate": estimate, "admm": admm, "fast": admm_fast, "auto": auto}
+    )
+    t_est, est = best["estimate"]
+    t_admm, res = best["admm"]
+    t_fast, res_fast = best["fast"]
+    t_auto = best["auto"][0]
     row = {
         "problem": name,
         "nodes": scene.num_nodes,
