@@ -102,10 +102,12 @@ def test_parallel_estimate_matches_serial():
     assert est.r == pytest.approx(serial.r, rel=1e-6)
     assert est.lambda_min == pytest.approx(serial.lambda_min, rel=1e-6)
     assert est.lambda_max == pytest.approx(serial.lambda_max, rel=1e-6)
-    # default tolerance: λ_max by multigrid, whose aggregates depend on the partition
+    # default tolerance: λ_max by multigrid, whose aggregates depend on the partition;
+    # LOBPCG stops at a residual of tol/2, so λ_max (and r*) move within its accuracy
+    # (≤ 9e-5 against the dense reference, benchmarks/penalty_accuracy.py)
     loose, loose_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
     assert loose.details["lambda_max_method"] == "multigrid"
-    assert loose.r == pytest.approx(loose_serial.r, rel=1e-5)
+    assert loose.r == pytest.approx(loose_serial.r, rel=2e-4)
     serial_problem.destroy()
 
 

@@ -53,8 +53,8 @@ applications: substitutions with a factorisation, or AMG V-cycles.
 Partition dependence: at tolerances ≤ 1e-6 r* is the same on any number of processes
 to round-off (tested to 1e-6 under ``mpiexec -n 2``).  At the default tolerance the
 multigrid aggregates depend on the partition, and r* with them, by about the
-error of θ (≤ 1e-5 tested on Example 1 h = 1/16, a few 1e-5 on larger meshes); the
-ADMM converges to the same solution.
+error of θ (a few 1e-5 measured; tested ≤ 2e-4 under ``mpiexec -n 2``);
+the ADMM converges to the same solution.
 """
 
 from __future__ import annotations
