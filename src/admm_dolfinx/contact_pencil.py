@@ -24,7 +24,6 @@ from slepc4py import SLEPc
 
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.petsc import (
-    apply_options,
     check_solve,
     create_factor_solver,
     solve_top_eigenpair,
@@ -285,16 +284,15 @@ def largest_eigenvalue(
         # A small basis restarts (and checks convergence) early: cheapest at loose tol.
         eps.setDimensions(nev=1, ncv=min(space.m, 8 if tol >= 1e-4 else 32))
         eps.setTolerances(tol=tol, max_it=max_it)
-        if deflation:
-            eps.setDeflationSpace(deflation)
-        eps.setInitialSpace([start])
-        apply_options(eps, prefix, {})
         value, vec, its = solve_top_eigenpair(
             eps,
             space.create_vec,
             f"SLEPc did not converge to the extreme eigenvalue of the contact pencil "
             f"within {max_it} restarts (tol {tol:g}). Loosen penalty_tol or give the "
             "penalty explicitly",
+            prefix=prefix,
+            start=[start],
+            deflation=deflation,
         )
         return value, vec, its
     finally:

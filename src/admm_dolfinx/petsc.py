@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 from petsc4py import PETSc
@@ -152,14 +152,23 @@ def check_solve(ksp: PETSc.KSP, what: str) -> None:
 
 
 def solve_top_eigenpair(
-    eps: Any, create_vec: Callable[[], PETSc.Vec], failure: str
+    eps: Any,
+    create_vec: Callable[[], PETSc.Vec],
+    failure: str,
+    *,
+    prefix: str,
+    start: Sequence[PETSc.Vec] = (),
+    deflation: Sequence[PETSc.Vec] = (),
 ) -> tuple[float, PETSc.Vec, int]:
     """Run a configured SLEPc EPS and return its first eigenpair; collective.
 
     Args:
-        eps: The eigensolver, operators and options set.
+        eps: The eigensolver, its operators, type and tolerances set.
         create_vec: Makes the vector that receives the eigenvector (only on success).
         failure: What to tell the user if nothing converged (the reason is appended).
+        prefix: Options prefix; the user's ``-{prefix}eps_*`` options are applied last.
+        start: Initial space (empty: SLEPc's random start).
+        deflation: Vectors whose orthogonal complement is searched.
 
     Returns:
         The eigenvalue, the eigenvector (the caller destroys it), the iteration count.
@@ -167,6 +176,11 @@ def solve_top_eigenpair(
     Raises:
         RuntimeError: If no eigenpair converged.
     """
+    if deflation:
+        eps.setDeflationSpace(list(deflation))
+    if start:
+        eps.setInitialSpace(list(start))
+    apply_options(eps, prefix, {})
     eps.solve()
     if eps.getConverged() < 1:
         raise RuntimeError(f"{failure} (SLEPc reason {eps.getConvergedReason()}).")

@@ -124,18 +124,16 @@ def largest_generalized_eigenpair(
         ksp.setType(PETSc.KSP.Type.PREONLY)
         ksp.getPC().setType(PETSc.PC.Type.PYTHON)
         ksp.getPC().setPythonContext(_ColumnByColumn(multigrid))
-        if deflation:
-            eps.setDeflationSpace(deflation)
         start = _ritz_start(K, B, multigrid, trial_loads) if trial_loads else []
-        if start:
-            eps.setInitialSpace(start)
-        apply_options(eps, prefix, {})
         theta, vec, its = solve_top_eigenpair(
             eps,
             B.createVecRight,
             f"LOBPCG did not converge to the largest eigenvalue of the contact pencil "
             f"within {max_it} iterations (tol {tol:g}). Loosen penalty_tol, give the "
             f"penalty explicitly, or tune the multigrid with -{prefix}amg_pc_gamg_* options",
+            prefix=prefix,
+            start=start,
+            deflation=deflation or (),
         )
         return theta, vec, its
     finally:
