@@ -117,7 +117,7 @@ _MULTIGRID_MAX_IT = 200
 #: at tol itself can stop inside a cluster of top eigenvalues (Example 3 level 2:
 #: λ_max 1.1 % low at tol 1e-2); half of it keeps λ_max within 1e-3 on every measured
 #: mesh (``benchmarks/penalty_accuracy.py``) at a third of the iterations of a tenth
-#: (257k-dof Example 3: 10 instead of 28).
+#: (257k-dof Example 3, measured with one-V-cycle starts: 10 instead of 28).
 _MULTIGRID_TOL = 0.5
 
 
@@ -131,7 +131,9 @@ class PenaltyEstimate:
         lambda_max: Largest finite eigenvalue of A⁻¹NᵀMN.
         solves: Linear solves (operator applications) used by both eigenvalue solves.
         time: Wall-clock seconds, factorisations included.
-        details: Breakdown: solves and times per extreme, r_a, rigid modes deflated.
+        details: Breakdown: solves and seconds per extreme (``solves_min``,
+            ``time_min``, ``solves_max``, ``time_max``; ``time_multigrid_setup`` when
+            λ_max came from multigrid), the auxiliary r_a, rigid modes deflated.
     """
 
     r: float
@@ -324,6 +326,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
     K_unit.scale(1.0 / k_scale)
     loads = _affine_pressure_loads(space)
     iterations = 0
+    counts: dict[str, float] = {}
 
     def top(r_a, rigid):
         nonlocal iterations
@@ -343,6 +346,7 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
             max_it=min(max_it, _MULTIGRID_MAX_IT),
             prefix=prefix + "lmax_",
             trial_loads=loads,
+            info=counts,
         )
         iterations += its
         return theta * k_scale / b_scale, vec, its
@@ -355,9 +359,10 @@ def _lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
         for obj in (B, K_unit, modes, *loads):
             obj.destroy()
     info.update(
-        solves_max=iterations * BLOCK_SIZE,
+        solves_max=iterations * BLOCK_SIZE + int(counts.get("start_cycles", 0)),
         lobpcg_iterations=iterations,
         lambda_max_method="multigrid",
+        time_multigrid_setup=counts.get("multigrid_setup", 0.0),
     )
     return lambda_max, info
 
