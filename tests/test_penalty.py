@@ -40,7 +40,12 @@ def test_example3_against_algorithm5(level):
     problem = example3(level=level).problem()
     ev = algorithm5_eigenvalues(problem)
     _compare(estimate_penalty(problem, tol=TIGHT), ev[0], ev[-1], 1e-6)
-    _compare(estimate_penalty(problem), ev[0], ev[-1], 0.05)
+    loose = estimate_penalty(problem)
+    _compare(loose, ev[0], ev[-1], 0.05)
+    # λ_max by multigrid, LOBPCG started near the top eigenvector (trial responses from
+    # CG steps): level 1 took 11 iterations from one-V-cycle responses, now 3
+    assert loose.details["lambda_max_method"] == "multigrid"
+    assert loose.details["lobpcg_iterations"] <= 6
 
 
 @serial_only
@@ -104,7 +109,7 @@ def test_parallel_estimate_matches_serial():
     assert est.lambda_max == pytest.approx(serial.lambda_max, rel=1e-6)
     # default tolerance: λ_max by multigrid, whose aggregates depend on the partition;
     # LOBPCG stops at a residual of tol/2, so λ_max (and r*) move within its accuracy
-    # (≤ 9e-5 against the dense reference, benchmarks/penalty_accuracy.py)
+    # (≤ 2e-4 against the dense reference, benchmarks/penalty_accuracy.py)
     loose, loose_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
     assert loose.details["lambda_max_method"] == "multigrid"
     assert loose.r == pytest.approx(loose_serial.r, rel=2e-4)

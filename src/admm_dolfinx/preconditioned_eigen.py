@@ -198,7 +198,9 @@ def _ritz_start(K, B, multigrid, loads, prefix) -> tuple[list[PETSc.Vec], int]:
             responses.append(response)
             ksp.solve(load, response)
             cycles += ksp.getIterationNumber()
-            if ksp.getConvergedReason() < 0:  # CG broke down: one V-cycle instead
+            reason = ksp.getConvergedReason()  # DIVERGED_MAX_IT: the planned steps were taken
+            if reason < 0 and reason != PETSc.KSP.ConvergedReason.DIVERGED_MAX_IT:
+                # CG broke down (indefinite preconditioner, NaN): one V-cycle instead
                 multigrid.apply(load, response)
                 cycles += 1
     finally:
