@@ -28,7 +28,9 @@ the default tolerance, the full-space pencil with LOBPCG:
     contact mode, a global quantity:
 
     * at the default (loose) tolerance, LOBPCG on the full-space pencil, preconditioned
-      by one algebraic-multigrid V-cycle of A + r_a K per vector and iteration
+      by one algebraic-multigrid V-cycle of A + r_a K per vector and iteration and
+      started from the body's responses to affine normal pressures on Γ_C (four
+      multigrid-preconditioned CG steps each)
       (:mod:`admm_dolfinx.preconditioned_eigen`): no factorisation at all;
     * at tolerances ≤ 1e-6, and for floating bodies (Rᵀ A R singular for the rigid
       body modes R: found with a few products before any solve), Krylov–Schur on
