@@ -22,39 +22,14 @@ they take under 2 s in all (the machines are noisy). Run:
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 from mpi4py import MPI
 from tables import print_and_save
+from timing import best_of_rounds
 
 import admm_dolfinx
 from admm_dolfinx.scenes import example1, example3
-
-
-def timed(fn):
-    """(seconds, value) of one call, the slowest rank's time."""
-    MPI.COMM_WORLD.Barrier()
-    t0 = time.perf_counter()
-    value = fn()
-    return MPI.COMM_WORLD.allreduce(time.perf_counter() - t0, op=MPI.MAX), value
-
-
-def best_of_rounds(repeat, functions, min_time=2.0):
-    """Fastest time of each function, measured in interleaved rounds (one call of each
-    per round): at least ``repeat`` rounds, and more while they took under
-    ``min_time`` seconds in all. Interleaving keeps slow phases of a noisy machine
-    from favouring one of them (a 0.1 s solve varied by 50 % between runs here)."""
-    best = {name: (float("inf"), None) for name in functions}
-    rounds, spent = 0, 0.0
-    while rounds < repeat or spent < min_time:
-        for name, fn in functions.items():
-            seconds, value = timed(fn)
-            spent += seconds
-            if seconds < best[name][0]:
-                best[name] = (seconds, value)
-        rounds += 1
-    return best
 
 
 def measure(name, scene, repeat):
