@@ -121,3 +121,30 @@ def test_bad_tolerance(tol):
     problem = example1(h=1 / 8, mesher="builtin").problem()
     with pytest.raises(ValueError, match="tol must lie in"):
         estimate_penalty(problem, tol=tol)
+
+
+@pytest.mark.parametrize(
+    "scene, expected",
+    [
+        (lambda: example1(h=1 / 16), 2),  # flat Γ_C: 1, x (y is constant there)
+        (lambda: example2(level=0), 3),  # curved Γ_C: 1, x, y
+        (lambda: example3(level=0), 3),  # flat bottom face: 1, x, y (z is constant)
+    ],
+)
+def test_trial_pressures_drop_dependent_ones(scene, expected):
+    """λ_max's start solves only for affine pressures independent on Γ_C (MPI-safe)."""
+    from admm_dolfinx.contact_pencil import ContactSpace
+    from admm_dolfinx.penalty import _affine_pressure_loads
+
+    problem = scene().problem()
+    space = ContactSpace(problem)
+    loads = _affine_pressure_loads(space)
+    try:
+        assert len(loads) == expected
+        gram = np.array([[a.dot(b) for b in loads] for a in loads])  # global dots
+        eigenvalues = np.linalg.eigvalsh(gram)
+        assert eigenvalues[0] > 1e-6 * eigenvalues[-1]  # independent, none near zero
+    finally:
+        for vec in loads:
+            vec.destroy()
+        space.destroy()

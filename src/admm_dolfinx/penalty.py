@@ -113,6 +113,9 @@ _LOCAL_MAX_TOL = 1e-6
 _RIGID_TOL = 1e-6
 #: Rᵀ A R (rigid body modes R, orthonormal) below this × max diag(A): a floating body.
 _FLOATING_TOL = 1e-10
+#: A trial pressure whose part M-orthogonal to the previous ones is below this fraction
+#: of sqrt|Γ_C| depends on them on Γ_C (round-off leaves ~1e-16) and is dropped.
+_DEPENDENT_PRESSURE = 1e-8
 #: LOBPCG iterations allowed before λ_max falls back to a factorisation.
 _MULTIGRID_MAX_IT = 200
 #: LOBPCG's residual tolerance relative to the eigenvalue tolerance. A residual test
@@ -285,6 +288,10 @@ def _affine_pressure_loads(space: ContactSpace) -> list[PETSc.Vec]:
 
     The smoothest contact modes (the top of the λ spectrum: uniform push, tilts) are
     close to the body's responses to these; LOBPCG starts from their Ritz vectors.
+    The pressures are M-orthonormalised first and those that depend on the others on
+    Γ_C are dropped (the height of a flat contact zone, or any combination constant
+    on a plane): each kept load costs START_CG_STEPS multigrid-preconditioned
+    CG steps, and a dependent one would only be discarded by the Ritz step.
     """
     problem, c = space.problem, space.problem.contact
     coords = c.coordinates[:, : problem.gdim]
@@ -293,9 +300,18 @@ def _affine_pressure_loads(space: ContactSpace) -> list[PETSc.Vec]:
     problem.comm.Allreduce(coords.min(axis=0, initial=np.inf), lower, op=MPI.MIN)
     problem.comm.Allreduce(coords.max(axis=0, initial=-np.inf), upper, op=MPI.MAX)
     centred = (coords - 0.5 * (lower + upper)) / np.maximum(upper - lower, 1e-300).max()
-    pressures = [np.ones(space.m_local), *centred.T]
+    # the centred coordinates are scaled to the largest extent of Γ_C, so the M-norm of
+    # the constant pressure, sqrt|Γ_C|, is the size of every independent one
+    size = math.sqrt(problem.comm.allreduce(float(c.mass.sum()), op=MPI.SUM))
+    kept: list[np.ndarray] = []
+    for q in (np.ones(space.m_local), *centred.T):
+        for basis in kept:  # modified Gram-Schmidt in the M inner product
+            q = q - problem.comm.allreduce(float(basis @ (c.mass * q)), op=MPI.SUM) * basis
+        norm = math.sqrt(problem.comm.allreduce(float(q @ (c.mass * q)), op=MPI.SUM))
+        if norm > _DEPENDENT_PRESSURE * size:
+            kept.append(q / norm)
     loads = []
-    for q in pressures:
+    for q in kept:
         vec = problem.create_vector()
         space.map.scatter(q, vec, c.mass)
         loads.append(vec)

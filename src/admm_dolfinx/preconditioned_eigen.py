@@ -33,7 +33,7 @@ __all__ = ["BLOCK_SIZE", "gram_matrix", "largest_generalized_eigenpair", "rigid_
 BLOCK_SIZE = 2
 #: Multigrid-preconditioned CG steps per trial load for LOBPCG's start. One V-cycle
 #: per load (a single step) left the 3D block on a ball 20-24 LOBPCG iterations from
-#: the top eigenvector; four steps cut that to 7-8, at 12 extra V-cycles in 3D.
+#: the top eigenvector; four steps cut that to 7-8, at three extra V-cycles per load.
 START_CG_STEPS = 4
 
 
