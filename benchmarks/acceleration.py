@@ -53,15 +53,18 @@ def say(*args):
 
 
 def reference(problem, axis_aligned):
+    """(u_ref, how it was computed, the active set: local mask of contact nodes with λ > 0)."""
     with admm_dolfinx.ADMMSolver(problem, rtol=1e-12, max_iter=5000) as solver:
         tight = solver.solve()
+    active = tight.multiplier > 0.0
     if not axis_aligned:
-        return tight.u.x.petsc_vec.copy(), f"ADMM rtol 1e-12 (KKT {tight.kkt.max():.1e})"
+        how = f"ADMM rtol 1e-12 (KKT {tight.kkt.max():.1e})"
+        return tight.u.x.petsc_vec.copy(), how, active
     try:
         ref = solve_snes_vi(problem, initial_guess=tight.u.x.petsc_vec)
     except RuntimeError as err:  # SNES stalled at round-off: keep the tight ADMM answer
-        return tight.u.x.petsc_vec.copy(), f"ADMM rtol 1e-12 (SNES VI: {err})"
-    return ref.u.x.petsc_vec.copy(), f"SNES VI ({ref.iterations} Newton steps)"
+        return tight.u.x.petsc_vec.copy(), f"ADMM rtol 1e-12 (SNES VI: {err})", active
+    return ref.u.x.petsc_vec.copy(), f"SNES VI ({ref.iterations} Newton steps)", active
 
 
 class ErrorTrace:
@@ -145,7 +148,7 @@ def bench_mesh(name, scene, axis_aligned, with_r_bar, variants):
     t0 = time.perf_counter()
     estimate = admm_dolfinx.estimate_penalty(problem)
     t_penalty = time.perf_counter() - t0
-    u_ref, how = reference(problem, axis_aligned)
+    u_ref, how, _ = reference(problem, axis_aligned)
     say(f"   reference: {how}; r* = {estimate.r:.5g} ({t_penalty:.2f} s)")
     plain_fact, t_solve = plain_solve_times(problem, estimate.r)
     runs = dict(variants)
