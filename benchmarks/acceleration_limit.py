@@ -1,7 +1,8 @@
 """How far can acceleration of the ADMM map go? The same map with the active set known.
 
-The accelerated default (α = 1.6, safeguarded Anderson with memory 5) cuts ADMM's
-iterations 2-5x, but its count still grows under refinement. This benchmark separates
+The accelerated default (α = 1.6, safeguarded Anderson with memory 5) needs several
+times fewer iterations than the paper's ADMM, but its count still grows under
+refinement. This benchmark separates
 the two phases of the iteration to show where the growth comes from:
 
 * **actual**: ``paper r*`` (α = 1, no acceleration) and the accelerated ``default``,
