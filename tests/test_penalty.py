@@ -148,3 +148,50 @@ def test_trial_pressures_drop_dependent_ones(scene, expected):
         for vec in loads:
             vec.destroy()
         space.destroy()
+
+
+class _SignFlips:
+    """An indefinite preconditioner (every other local entry negated): CG breaks down."""
+
+    def apply(self, pc, x, y):
+        x.copy(y)
+        y.getArray()[::2] *= -1.0
+
+
+def test_ritz_start_falls_back_when_cg_breaks_down():
+    """When the start's CG really breaks down (an indefinite preconditioner, not just the
+    planned steps taken), each response is one preconditioner application instead: the
+    Ritz vectors are finite, B-orthonormal and lie in span{P f_i}."""
+    from admm_dolfinx.contact_pencil import ContactSpace
+    from admm_dolfinx.penalty import _affine_pressure_loads
+    from admm_dolfinx.preconditioned_eigen import BLOCK_SIZE, _ritz_start, gram_matrix
+
+    problem = example1(h=1 / 16).problem()
+    space = ContactSpace(problem)
+    loads = _affine_pressure_loads(space)
+    flipped = [load.copy() for load in loads]
+    for vec in flipped:
+        vec.getArray()[::2] *= -1.0
+    pc = PETSc.PC().create(comm=problem.comm)
+    pc.setType(PETSc.PC.Type.PYTHON)
+    pc.setPythonContext(_SignFlips())
+    pc.setOperators(problem.A)
+    start = []
+    try:
+        start, _ = _ritz_start(problem.K, problem.A, pc, loads, "test_breakdown_")
+        assert len(start) == BLOCK_SIZE
+        gram = gram_matrix(problem.A, start)
+        assert np.all(np.isfinite(gram))
+        np.testing.assert_allclose(gram, np.eye(BLOCK_SIZE), atol=1e-10)
+        basis = np.array([[a.dot(b) for b in flipped] for a in flipped])
+        for vec in start:  # the part of vec outside span{P f_i} vanishes
+            coefficients = np.linalg.solve(basis, [f.dot(vec) for f in flipped])
+            residual = vec.copy()
+            residual.maxpy(-coefficients, flipped)
+            assert residual.norm() <= 1e-10 * vec.norm()
+            residual.destroy()
+    finally:
+        for vec in (*start, *loads, *flipped):
+            vec.destroy()
+        pc.destroy()
+        space.destroy()
