@@ -23,6 +23,10 @@ r̄ minimises the iterations to 1e-6 over 12 penalties log-spaced in [r*/10, 10 
     python benchmarks/acceleration.py --quick           # small meshes only
     python benchmarks/acceleration.py --only h0=0.24    # the 257k-dof 3D mesh only
     python benchmarks/acceleration.py --only "example3 level 3"   # both level-3 meshes
+    python benchmarks/acceleration.py --summary out_benchmarks/acceleration.csv
+
+The full table goes to the CSV; the run ends with the per-mesh summary that the README
+shows (``--summary`` prints it again from a CSV without rerunning).
 
 Writes out_benchmarks/acceleration.csv (and acceleration_select.csv).
 """
@@ -30,12 +34,13 @@ Writes out_benchmarks/acceleration.csv (and acceleration_select.csv).
 from __future__ import annotations
 
 import argparse
+import csv
 import time
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
-from tables import print_and_save
+from tables import markdown_table, print_and_save
 
 import admm_dolfinx
 from admm_dolfinx.admm import ADMMConvergenceError
@@ -203,6 +208,51 @@ def write_table(rows, path):
         print_and_save(rows, path)
 
 
+SUMMARY_COLUMNS = {
+    "paper r*": "paper r*",
+    "paper r̄": "paper r̄",
+    "relaxed": "relaxed α=1.6",
+    "anderson": "Anderson 5",
+    "both": "both (default)",
+}
+
+
+def summary_rows(rows):
+    """One row per mesh (the README's table): iterations to 1e-6 / 1e-8 per variant."""
+    meshes: dict[str, dict] = {}
+    for row in rows:
+        name = f"{row['mesh']} ({row['nodes']})"
+        summary = meshes.setdefault(name, {"mesh (nodes)": name})
+        pair = f"{row['iter 1e-06']} / {row['iter 1e-08']}"
+        column = SUMMARY_COLUMNS[row["variant"]]
+        summary[column] = f"**{pair}**" if row["variant"] == "both" else pair
+        if row["variant"] == "paper r*":
+            summary["_paper"] = (row["iter 1e-06"], row["iter 1e-08"])
+        if row["variant"] == "both":
+            summary["_both"] = row
+    table = []
+    for name, summary in meshes.items():
+        both, paper = summary.pop("_both"), summary.pop("_paper")
+        out = {"mesh (nodes)": name}
+        out.update({c: summary.get(c, "–") for c in SUMMARY_COLUMNS.values()})
+        out["both / paper r*"] = " / ".join(
+            f"{int(b) / int(p):.2f}" if str(b).isdigit() and str(p).isdigit() else "–"
+            for b, p in zip((both["iter 1e-06"], both["iter 1e-08"]), paper, strict=True)
+        )
+        out["contact / plain"] = f"{both['contact/plain 1e-06']} / {both['contact/plain 1e-08']}"
+        out["r* [s]"] = both["r* [s]"]
+        out["factorisation [s]"] = both["factorisation [s]"]
+        out["plain [s]"] = both["plain [s]"]
+        table.append(out)
+    return table
+
+
+def print_summary(rows):
+    if COMM.rank == 0:
+        print("\niterations to 1e-6 / 1e-8 (default in bold); time ratios of the default\n")
+        print(markdown_table(summary_rows(rows)), flush=True)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small meshes only")
@@ -215,8 +265,18 @@ def main():
         "--only", default=None, help="run only the meshes whose name contains this text"
     )
     parser.add_argument("--out", default="out_benchmarks")
+    parser.add_argument(
+        "--summary",
+        metavar="CSV",
+        default=None,
+        help="only print the per-mesh summary of an earlier run's acceleration.csv",
+    )
     args = parser.parse_args()
     out = Path(args.out)
+    if args.summary:
+        with open(args.summary, newline="") as fh:
+            print_summary(list(csv.DictReader(fh)))
+        return
 
     if args.select:
         grid = {
@@ -268,6 +328,7 @@ def main():
     for name, build, aligned, with_r_bar in meshes:
         rows += bench_mesh(name, build(), aligned, with_r_bar, VARIANTS)
     write_table(rows, out / "acceleration.csv")
+    print_summary(rows)
 
 
 if __name__ == "__main__":
