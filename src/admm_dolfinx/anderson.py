@@ -1,10 +1,17 @@
 """Anderson acceleration of a fixed-point map z ↦ T(z), distributed over MPI ranks.
 
 Type-II Anderson mixing with memory k: keep the last k differences of the residuals
-f = T(z) − z and of the images T(z), find γ minimising ‖f − ΔF γ‖_W (a small k × k
-least-squares problem whose inner products are summed over all ranks), and propose
+f = T(z) − z and of the images T(z), find γ minimising ‖f − ΔF γ‖_W, and propose
 z⁺ = T(z) − ΔG γ. The caller safeguards the proposal (accepts it only if it lowers the
 fixed-point residual) and projects it onto the feasible set.
+
+The least-squares problem is solved through a QR factorisation of W^½ [ΔF | f], not
+through the normal equations ΔFᵀWΔF γ = ΔFᵀW f, whose condition number is the square
+of ΔF's: the differences become nearly dependent as the iteration converges, and with
+a long memory the normal equations then lose the digits that the tail of the
+iteration needs. Under MPI the QR is a tall-skinny QR: each rank factorises its rows,
+the (k+1) × (k+1) triangles are gathered and factorised once more, identically on
+every rank, so every rank takes the same γ.
 """
 
 from __future__ import annotations
@@ -30,10 +37,11 @@ class AndersonMixer:
 
     Args:
         memory: Number k of stored differences (≥ 1).
-        weights: Local weights w of the inner product ⟨a, b⟩ = Σ w_i a_i b_i.
+        weights: Local weights w > 0 of the inner product ⟨a, b⟩ = Σ w_i a_i b_i.
         comm: Communicator over which the vectors are distributed.
-        regularization: Relative Tikhonov shift of the normal equations (keeps the
-            k × k system solvable when the differences become nearly dependent).
+        rcond: Directions of ΔF whose singular value is below ``rcond`` times the
+            largest are left out of the least-squares solution (they carry no
+            information once the differences become nearly dependent).
     """
 
     def __init__(
@@ -41,14 +49,15 @@ class AndersonMixer:
         memory: int,
         weights: npt.NDArray[np.float64],
         comm: MPI.Comm,
-        regularization: float = 1e-10,
+        rcond: float = 1e-10,
     ):
         if memory < 1:
             raise ValueError(f"Anderson memory must be at least 1, got {memory}.")
         self.memory = int(memory)
         self.weights = np.asarray(weights, dtype=np.float64)
         self.comm = comm
-        self.regularization = regularization
+        self.rcond = rcond
+        self._sqrt_weights = np.sqrt(self.weights)
         self._dF: deque = deque(maxlen=self.memory)
         self._dG: deque = deque(maxlen=self.memory)
         self._last: tuple[np.ndarray, np.ndarray] | None = None
@@ -58,6 +67,24 @@ class AndersonMixer:
         self._dF.clear()
         self._dG.clear()
         self._last = None
+
+    def coefficients(self, f: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """γ minimising ‖f − ΔF γ‖_W over the stored differences; collective.
+
+        Args:
+            f: The current residual (local part).
+
+        Returns:
+            γ, the same on every rank.
+        """
+        k = len(self._dF)
+        columns = np.column_stack([*self._dF, f]) * self._sqrt_weights[:, None]
+        triangles = self.comm.allgather(np.linalg.qr(columns, mode="r"))
+        R = np.linalg.qr(np.vstack(triangles), mode="r")
+        if R.shape[0] < k + 1:  # fewer rows than columns in all (a tiny problem)
+            R = np.vstack([R, np.zeros((k + 1 - R.shape[0], k + 1))])
+        # ‖f − ΔF γ‖ = ‖R[:k, k] − R[:k, :k] γ‖ up to a constant
+        return np.linalg.lstsq(R[:k, :k], R[:k, k], rcond=self.rcond)[0]
 
     def update(
         self, z: npt.NDArray[np.float64], Tz: npt.NDArray[np.float64]
@@ -79,18 +106,11 @@ class AndersonMixer:
         self._last = (f, Tz.copy())
         if not self._dF:
             return None
-        dF = np.array(self._dF)  # (k, n_local)
-        wdF = dF * self.weights
-        local = np.concatenate([(wdF @ dF.T).ravel(), wdF @ f])
-        total = np.empty_like(local)
-        self.comm.Allreduce(local, total, op=MPI.SUM)
-        k = dF.shape[0]
-        gram = total[: k * k].reshape(k, k)
-        rhs = total[k * k :]
-        shift = self.regularization * max(np.trace(gram) / k, np.finfo(float).tiny)
         try:
-            gamma = np.linalg.solve(gram + shift * np.eye(k), rhs)
-        except np.linalg.LinAlgError:
+            gamma = self.coefficients(f)
+        except np.linalg.LinAlgError:  # NaN in the history: start afresh
+            gamma = np.full(len(self._dF), np.nan)
+        if not np.all(np.isfinite(gamma)):
             self.reset()
             return None
         return Tz - np.array(self._dG).T @ gamma
