@@ -247,6 +247,25 @@ def summary_rows(rows):
     return table
 
 
+def print_select_grid(rows):
+    """The README's grid: iterations to 1e-6 / 1e-8 summed over the meshes, per (α, k)."""
+    totals: dict[tuple[float, int], list[int]] = {}
+    for row in rows:
+        alpha, memory = row["variant"].removeprefix("alpha ").split(", m ")
+        total = totals.setdefault((float(alpha), int(memory)), [0, 0])
+        for i, target in enumerate(("iter 1e-06", "iter 1e-08")):
+            total[i] += int(row[target]) if str(row[target]).isdigit() else 10**6
+    alphas = sorted({a for a, _ in totals})
+    memories = sorted({m for _, m in totals})
+    table = [
+        {"α \\ memory": a} | {str(m): " / ".join(map(str, totals[a, m])) for m in memories}
+        for a in alphas
+    ]
+    if COMM.rank == 0:
+        print("\niterations to 1e-6 / 1e-8, summed over the meshes\n")
+        print(markdown_table(table), flush=True)
+
+
 def print_summary(rows):
     if COMM.rank == 0:
         print("\niterations to 1e-6 / 1e-8 (default in bold); time ratios of the default\n")
@@ -293,6 +312,7 @@ def main():
         for name, scene, aligned in meshes:
             rows += bench_mesh(name, scene, aligned, False, grid)
         write_table(rows, out / "acceleration_select.csv")
+        print_select_grid(rows)
         return
 
     if args.quick:
