@@ -92,3 +92,17 @@ def test_long_memory_reaches_round_off():
 def test_memory_must_be_positive():
     with pytest.raises(ValueError, match="at least 1"):
         AndersonMixer(0, np.ones(3), COMM)
+
+
+def test_nan_in_history_resets_on_every_rank():
+    """A NaN on one rank gives no proposal on any rank (no rank waits for another)."""
+    n = 10
+    own = _split(n)
+    mixer = AndersonMixer(3, np.ones(own.stop - own.start), COMM)
+    rng = np.random.default_rng(5)
+    z0, t0, z1, t1 = (rng.standard_normal(n)[own] for _ in range(4))
+    assert mixer.update(z0, t0) is None  # no history yet
+    if COMM.rank == 0 and t1.size:
+        t1[0] = np.nan
+    assert mixer.update(z1, t1) is None
+    assert not mixer._dF  # started afresh
