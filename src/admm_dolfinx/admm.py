@@ -413,7 +413,8 @@ class ADMMSolver:
                     active = int(problem.comm.allreduce(int(np.count_nonzero(lam > 0.0))))
 
                     # safeguard: an extrapolated state must lower the fixed-point residual
-                    rejected = proposal and accepted is not None and res >= accepted[1]
+                    # (written as "not <" so that a NaN residual is rejected too)
+                    rejected = proposal and accepted is not None and not res < accepted[1]
                     for key, val in zip(
                         keys,
                         (du, dp, fpr, feas, comp, eq, active, -1 if rejected else int(proposal)),
