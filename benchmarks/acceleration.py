@@ -17,6 +17,10 @@ For every mesh, in one run:
    machine noise (30 % here) does not enter the ratio; the spread is printed.
 
 r̄ minimises the iterations to 1e-6 over 12 penalties log-spaced in [r*/10, 10 r*].
+On the largest meshes, where that search costs too much, each of the 12 penalties
+runs only as many iterations as the default needs to 1e-8: the ``paper r̄`` cells then
+hold the best count if some penalty reaches the error within them, and "> N" if none
+does (so the default needs fewer iterations than the paper at any sampled r).
 
     python benchmarks/acceleration.py --select          # choose the defaults (α, memory)
     python benchmarks/acceleration.py                   # the README table
@@ -112,14 +116,36 @@ def run_variant(problem, u_ref, r, options, cap=None, max_iter=3000):
     return trace, per_iteration, t_fact
 
 
+def penalty_samples(r_star):
+    """The 12 penalties log-spaced in [r*/10, 10 r*] from which r̄ is chosen."""
+    return np.geomspace(r_star / 10, r_star * 10, 12)
+
+
 def sampled_r_bar(problem, u_ref, r_star, options):
     best = (None, None)
-    for r in np.geomspace(r_star / 10, r_star * 10, 12):
+    for r in penalty_samples(r_star):
         trace, _, _ = run_variant(problem, u_ref, r, options, cap=best[1], max_iter=800)
         its = trace.iterations_to(TARGETS[0])
         if its is not None and (best[1] is None or its < best[1]):
             best = (r, its)
     return best[0]
+
+
+def r_bar_bound(problem, u_ref, r_star, options, cap):
+    """The paper's best count over the same 12 penalties, each run for ``cap`` iterations.
+
+    Where sampling r̄ in full is too expensive, this still answers whether any of the
+    penalties reaches each target within ``cap`` iterations (the default's count to
+    1e-8): a count ≤ cap is exact, and "> cap" means none of the 12 does.
+    """
+    best = [None] * len(TARGETS)
+    for r in penalty_samples(r_star):
+        trace, _, _ = run_variant(problem, u_ref, r, options, cap=cap, max_iter=cap)
+        for i, target in enumerate(TARGETS):
+            its = trace.iterations_to(target)
+            if its is not None and (best[i] is None or its < best[i]):
+                best[i] = its
+    return [its if its is not None else f"> {cap}" for its in best]
 
 
 def plain_solve_times(problem, r):
@@ -197,6 +223,14 @@ def bench_mesh(name, scene, axis_aligned, with_r_bar, variants):
         row["per iteration [s]"] = f"{per_it:.2g}"
         rows.append(row)
         say("   " + ", ".join(f"{k} {v}" for k, v in row.items() if k not in ("mesh", "nodes")))
+    if not with_r_bar:  # is any penalty of the r̄ grid as fast as the default?
+        cap = traces["both"][1].iterations_to(TARGETS[-1]) if "both" in traces else None
+        if cap is not None:
+            bound = r_bar_bound(problem, u_ref, estimate.r, {"alpha": 1.0, "anderson": 0}, cap)
+            row = {"mesh": name, "nodes": scene.num_nodes, "variant": "paper r̄", "r": "12 samples"}
+            row |= {f"iter {t:.0e}": its for t, its in zip(TARGETS, bound, strict=True)}
+            rows.insert(1, row | {k: "–" for k in rows[0] if k not in row})
+            say(f"   paper r̄ (each of the 12 penalties run for {cap} iterations): {bound}")
     u_ref.destroy()
     problem.destroy()
     return rows
