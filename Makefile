@@ -1,7 +1,8 @@
 # admm_dolfinx: two commands on a fresh machine.
 #   make demo   Example 1 of the paper, end to end (creates/refreshes .venv first)
 #   make test   the test suite, serially and under mpiexec -n 2 (and -n 3), every demo
-#               serially and under mpiexec -n 2, and a quick `reproduce all`
+#               serially and under mpiexec -n 2, a quick `reproduce all`, and every
+#               benchmark at its smallest size
 # and, for reproduction:
 #   make reproduce OUT=dir   the paper's Tables 1-6 and figures (the Dockerfiles run this)
 SHELL := /bin/bash
@@ -19,7 +20,7 @@ PYTEST := -m pytest -q -p no:cacheprovider
 export PYVISTA_OFF_SCREEN ?= true
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: venv demo test test-serial test-mpi test-demos reproduce reproduce-quick lint clean
+.PHONY: venv demo test test-serial test-mpi test-demos test-benchmarks reproduce reproduce-quick lint clean
 
 # The venv is rebuilt when the project's metadata changes (or was never built).
 $(VENV)/.installed: pyproject.toml tools/find-python.sh
@@ -33,7 +34,7 @@ venv: $(VENV)/.installed
 demo: venv
 	$(PY) demos/example1.py
 
-test: test-serial test-mpi reproduce-quick test-demos
+test: test-serial test-mpi reproduce-quick test-demos test-benchmarks
 
 test-serial: venv
 	$(PY) $(PYTEST)
@@ -44,6 +45,10 @@ test-mpi: venv
 
 test-demos: venv
 	$(PY) demos/run_all.py
+
+# Every benchmark still runs (smallest sizes; the MPI-capable ones also under -n 2).
+test-benchmarks: venv
+	tools/bench-smoke.sh $(PY) $(MPIEXEC)
 
 reproduce: venv
 	$(PY) -m admm_dolfinx.cli reproduce all --out $(OUT)

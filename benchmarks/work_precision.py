@@ -237,7 +237,8 @@ def main():
     )
     parser.add_argument("--out", default="out_benchmarks")
     args = parser.parse_args()
-    assert MPI.COMM_WORLD.size == 1, "work_precision.py runs serially (OSQP is serial)"
+    if MPI.COMM_WORLD.size > 1:
+        parser.error("runs serially (OSQP is serial): drop mpiexec")
     out = Path(args.out)
     if args.quick:
         bench("example1 h=1/32", example1(h=1 / 32), out)

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Every benchmark still runs: the smallest sizes, and the MPI-capable ones also under
+# mpiexec -n 2, so that the README's commands keep working. Tables go to a scratch
+# folder; a failing benchmark's output is printed.
+# Usage: tools/bench-smoke.sh PYTHON MPIEXEC
+set -euo pipefail
+py=$1
+mpiexec=$2
+out=$(mktemp -d)
+trap 'rm -rf "$out"' EXIT
+parallel=(acceleration acceleration_limit hertz_validation orderings penalty_cost)
+
+run() {
+  echo "== $*"
+  if ! "$@" --out "$out" >"$out/log" 2>&1; then
+    cat "$out/log"
+    echo "benchmark failed: $*" >&2
+    exit 1
+  fi
+}
+
+for b in "${parallel[@]}" work_precision; do run "$py" "benchmarks/$b.py" --quick; done
+run "$py" benchmarks/hard_cases.py --small
+run "$py" benchmarks/penalty_accuracy.py
+for b in "${parallel[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done
+echo "benchmarks: all ran"
