@@ -24,7 +24,7 @@ from petsc4py import PETSc
 
 from admm_dolfinx.obstacles import Obstacle
 
-__all__ = ["VERTEX_RULE", "ContactSet", "build_contact_set", "contact_measure"]
+__all__ = ["VERTEX_RULE", "ContactSet", "build_contact_set", "compute_gap", "contact_measure"]
 
 #: Vertex quadrature on facets: turns facet mass integrals into the lumped (diagonal)
 #: mass ∫ φ_j ds and evaluates nodal fields exactly at the nodes.
@@ -206,12 +206,6 @@ def build_contact_set(
 
     coordinates = Q.tabulate_dof_coordinates()[dofs, :gdim]
     normals = normals_all[nodes, :gdim]
-    gap = np.asarray(obstacle.gap(coordinates, normals), dtype=np.float64).reshape(-1)
-    if gap.shape != (dofs.size,):
-        raise ValueError(
-            f"{type(obstacle).__name__}.gap returned shape {gap.shape}; expected "
-            f"({dofs.size},), one value per contact node."
-        )
 
     comm = msh.comm
     n_owned_on_contact = int(np.count_nonzero(on_contact[:n_owned_nodes]))
@@ -223,17 +217,7 @@ def build_contact_set(
             "into contact. Remove the Dirichlet condition from the contact boundary or "
             "choose another contact marker."
         )
-    bad = ~(np.isfinite(gap) | (gap == np.inf))
-    bad_points = comm.gather(coordinates[bad][:5], root=0)
-    n_bad = comm.allreduce(int(np.count_nonzero(bad)), op=MPI.SUM)
-    if n_bad > 0:
-        examples = np.concatenate(bad_points)[:5] if comm.rank == 0 else None
-        examples = comm.bcast(examples, root=0)
-        raise ValueError(
-            f"The gap to {obstacle!r} is NaN or -inf at {n_bad} contact node(s), e.g. at "
-            f"{examples.tolist()}. The obstacle's gap() must return a finite value, or "
-            "+inf where the node can never touch the obstacle."
-        )
+    gap = compute_gap(obstacle, coordinates, normals, comm)
 
     return ContactSet(
         Q=Q,
@@ -249,3 +233,46 @@ def build_contact_set(
         num_excluded=int(n_on_contact - n_global),
         q_to_node=q_to_node,
     )
+
+
+def compute_gap(
+    obstacle: Obstacle,
+    coordinates: npt.NDArray[np.float64],
+    normals: npt.NDArray[np.float64],
+    comm: MPI.Comm,
+) -> npt.NDArray[np.float64]:
+    """The gap g_j from each contact node along its normal to the obstacle; collective.
+
+    Args:
+        obstacle: The rigid obstacle.
+        coordinates: Owned contact node coordinates, shape (m_loc, gdim).
+        normals: Their unit outward normals, shape (m_loc, gdim).
+        comm: The mesh's communicator.
+
+    Returns:
+        g, shape (m_loc,): finite, or +inf where a node can never touch the obstacle.
+
+    Raises:
+        ValueError: On every rank, if ``obstacle.gap`` returns the wrong shape or a NaN
+            or −inf value at some node.
+    """
+    gap = np.asarray(obstacle.gap(coordinates, normals), dtype=np.float64).reshape(-1)
+    shape_ok = comm.allreduce(gap.shape == (coordinates.shape[0],), op=MPI.LAND)
+    if not shape_ok:
+        raise ValueError(
+            f"{type(obstacle).__name__}.gap returned an array of the wrong shape on some "
+            "process; it must return one value per contact node, shape (k,) for x and n "
+            "of shape (k, gdim)."
+        )
+    bad = ~(np.isfinite(gap) | (gap == np.inf))
+    bad_points = comm.gather(coordinates[bad][:5], root=0)
+    n_bad = comm.allreduce(int(np.count_nonzero(bad)), op=MPI.SUM)
+    if n_bad > 0:
+        examples = np.concatenate(bad_points)[:5] if comm.rank == 0 else None
+        examples = comm.bcast(examples, root=0)
+        raise ValueError(
+            f"The gap to {obstacle!r} is NaN or -inf at {n_bad} contact node(s), e.g. at "
+            f"{examples.tolist()}. The obstacle's gap() must return a finite value, or "
+            "+inf where the node can never touch the obstacle."
+        )
+    return gap

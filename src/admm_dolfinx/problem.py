@@ -34,6 +34,7 @@ from admm_dolfinx.contact import (
     ContactSet,
     build_contact_set,
     check_contact_facets,
+    compute_gap,
     contact_measure,
 )
 from admm_dolfinx.obstacles import Obstacle
@@ -189,14 +190,27 @@ class ContactProblem:
         self.K = fem_petsc.assemble_matrix(self._k, bcs=bcs, diag=0.0)
         self.K.assemble()
 
-        # Load with the Dirichlet lifting of A and, separately, of K, so that the right
-        # hand side of (A + rK) u = ... is load_A + r lift_K for any r.
-        self._load = fem_petsc.assemble_vector(self._L)
+        self._load = fem_petsc.create_vector(V)
+        self._lift_k = fem_petsc.create_vector(V)
+        self._assemble_load()
+        #: Wall-clock seconds spent building the operators (``assembly``).
+        self.timings = {"assembly": time.perf_counter() - t_start}
+
+    def _assemble_load(self) -> None:
+        """Assemble f from L and the Dirichlet values, in place; collective.
+
+        The load is lifted by A and, separately, by K, so that the right-hand side of
+        (A + rK) u = ... is load_A + r lift_K for any r.
+        """
+        bcs = self.bcs
+        for vec, form in ((self._load, self._L), (self._lift_k, None)):
+            with vec.localForm() as local:
+                local.set(0.0)
+            if form is not None:
+                fem_petsc.assemble_vector(vec, form)
         fem_petsc.apply_lifting(self._load, [self._a], bcs=[bcs])
         self._load.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         fem_petsc.set_bc(self._load, bcs)
-        self._lift_k = fem_petsc.create_vector(V)
-        self._lift_k.set(0.0)
         fem_petsc.apply_lifting(self._lift_k, [self._k], bcs=[bcs])
         self._lift_k.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         fem_petsc.set_bc(self._lift_k, bcs, alpha=0.0)
@@ -205,8 +219,43 @@ class ContactProblem:
         #: ‖f‖₂ over the free dofs (the scale of forces in the KKT residuals).
         self.load_norm = free_load.norm()
         free_load.destroy()
-        #: Wall-clock seconds spent building the operators (``assembly``).
-        self.timings = {"assembly": time.perf_counter() - t_start}
+
+    # ------------------------------------------------------------- load steps
+    def update_load(self) -> None:
+        """Reassemble the load after its data changed, e.g. for the next load step; collective.
+
+        Call it after changing a coefficient of ``L`` (a ``fem.Constant`` or
+        ``fem.Function``) or the *values* of the Dirichlet conditions. A, NᵀMN and
+        the contact set do not depend on them, so a solver built on this problem keeps
+        its penalty r* and its factorisation: the next ``solve()`` costs iterations
+        only. Changing which dofs are constrained, the forms themselves or the mesh
+        needs a new :class:`ContactProblem`.
+        """
+        self._assemble_load()
+
+    def update_obstacle(self, obstacle: Obstacle) -> None:
+        """Replace the rigid obstacle, e.g. move it for the next step; collective.
+
+        The gap g is recomputed at the same contact nodes along the same normals. As
+        with :meth:`update_load`, A, NᵀMN, r* and the factorisation stay valid.
+
+        Args:
+            obstacle: The new obstacle.
+
+        Raises:
+            TypeError: If ``obstacle`` is not an :class:`~admm_dolfinx.obstacles.Obstacle`.
+            ValueError: If it has the wrong dimension or its gap is NaN or −inf at some
+                contact node; the problem then keeps its previous obstacle.
+        """
+        if not isinstance(obstacle, Obstacle):
+            raise TypeError(
+                f"`obstacle` must be an admm_dolfinx.Obstacle (Plane, Ball or a subclass), "
+                f"got {type(obstacle).__name__}."
+            )
+        obstacle.check_dimension(self.gdim)
+        c = self.contact
+        c.gap = compute_gap(obstacle, c.coordinates, c.normals, self.comm)
+        self.obstacle = obstacle
 
     # ------------------------------------------------------------------ algebra
     @property
