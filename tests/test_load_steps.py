@@ -134,3 +134,32 @@ def test_bad_obstacle_update_raises_and_keeps_the_previous_one():
         problem.update_obstacle("floor")
     assert problem.obstacle is floor
     np.testing.assert_array_equal(problem.contact.gap, gap)
+
+
+def test_warm_start_from_the_previous_step_gives_the_same_answer_in_fewer_iterations():
+    mesh_data = _block()
+    problem, t, u_top = _problem(*mesh_data, -20.0, 0.004, _floor(-0.002, 0.002))
+    solver = ADMMSolver(problem, rtol=1e-10, max_iter=3000)
+    previous = solver.solve()
+    t.value[:] = (-22.0, 0.0)  # a small load increment
+    u_top.value[:] = (0.0, -0.0042)
+    problem.update_load()
+    cold = solver.solve()
+    warm = solver.solve(warm_start=previous)
+    assert warm.converged and warm.kkt.max() <= 1e-8
+    assert rel_diff(warm.u.x.array, cold.u.x.array) <= 1e-8
+    assert warm.iterations < cold.iterations
+    solver.destroy()
+
+
+def test_warm_start_from_another_problem_is_refused():
+    mesh_data = _block()
+    problem, _, _ = _problem(*mesh_data, 0.0, 0.004, _floor(-0.002))
+    other, _, _ = _problem(*_block(), 0.0, 0.004, _floor(-0.002))
+    with ADMMSolver(other, penalty=3000.0) as solver:
+        foreign = solver.solve()
+    with ADMMSolver(problem, penalty=3000.0) as solver:
+        with pytest.raises(ValueError, match="must be an ADMMResult of this problem"):
+            solver.solve(warm_start=foreign)
+        with pytest.raises(ValueError, match="must be an ADMMResult of this problem"):
+            solver.solve(warm_start="previous")

@@ -53,6 +53,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import fem
 from dolfinx.common import Timer
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
@@ -310,10 +311,31 @@ class ADMMSolver:
         }
 
     # ------------------------------------------------------------------ solve
+    def _warm_state(self, previous: ADMMResult, u_start: PETSc.Vec) -> np.ndarray:
+        """The state z⁰ = (min(N u, g), max(λ, 0)) of an earlier result; u copied to u_start."""
+        problem = self.problem
+        m = problem.contact.gap.size
+        ok = (
+            isinstance(previous, ADMMResult)
+            and previous.u.function_space == problem.V
+            and np.shape(previous.multiplier) == (m,)
+        )
+        if not problem.comm.allreduce(bool(ok), op=MPI.LAND):
+            raise ValueError(
+                "`warm_start` must be an ADMMResult of this problem (same displacement "
+                "space and contact nodes), e.g. the result of the previous load step."
+            )
+        previous.u.x.petsc_vec.copy(u_start)
+        p = np.minimum(problem.apply_normal(u_start), problem.contact.gap)
+        return np.concatenate([p, np.maximum(previous.multiplier, 0.0)])
+
     def solve(
-        self, callback: Callable[[int, PETSc.Vec, np.ndarray], bool] | None = None
+        self,
+        callback: Callable[[int, PETSc.Vec, np.ndarray], bool] | None = None,
+        *,
+        warm_start: ADMMResult | None = None,
     ) -> ADMMResult:
-        """Run ADMM from u⁰ = 0, λ⁰ = 0, p⁰ = min(0, g).
+        """Run ADMM from u⁰ = 0, λ⁰ = 0, p⁰ = min(0, g), or from an earlier result.
 
         Args:
             callback: Called after every iteration as ``callback(k, u, λ)`` (collective;
@@ -321,6 +343,9 @@ class ADMMSolver:
                 True the iteration stops there and the result is returned with
                 ``settings["stopped_by"] == "callback"`` (benchmarks use this to stop
                 at a given error against a reference).
+            warm_start: A result of this problem (e.g. the previous load step, after
+                :meth:`ContactProblem.update_load` or ``update_obstacle``): ADMM starts
+                from its u, its λ and p⁰ = min(N u, g) with the current gap g.
 
         Returns:
             The converged result.
@@ -353,10 +378,13 @@ class ADMMSolver:
         x_old = problem.create_vector()
         b0 = problem.create_vector()
         b = problem.create_vector()
-        x_old.set(0.0)
         problem.assemble_rhs(r, b0)
 
-        z = np.concatenate([np.minimum(0.0, g), np.zeros(m)])  # state (p, λ)
+        if warm_start is None:
+            x_old.set(0.0)
+            z = np.concatenate([np.minimum(0.0, g), np.zeros(m)])  # state (p, λ)
+        else:
+            z = self._warm_state(warm_start, x_old)
         p_prev = z[:m].copy()
         keys = (
             "du",
