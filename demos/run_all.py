@@ -19,6 +19,7 @@ DEMOS: dict[str, list[str]] = {
     "example1.py": ["--h", "0.125", "--samples", "20"],
     "hertz.py": ["--level", "0", "--samples", "20"],
     "block_on_ball.py": ["--level", "0", "--samples", "10"],
+    "load_steps.py": ["--n", "16", "--steps", "3"],
 }
 
 
