@@ -205,6 +205,12 @@ class ADMMSolver:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
             (0, 2), a negative Anderson memory, or an unknown mode or stopping test.
 
+    r* and the factorisation are computed here, once. They depend on A and NᵀMN only,
+    so :meth:`solve` may be called again after
+    :meth:`~admm_dolfinx.problem.ContactProblem.update_load` or
+    :meth:`~admm_dolfinx.problem.ContactProblem.update_obstacle` (load steps), warm
+    started from the previous result.
+
     The solver owns PETSc objects; call :meth:`destroy` (or use it as a context
     manager) to free them deterministically.
     """
