@@ -163,3 +163,18 @@ def test_warm_start_from_another_problem_is_refused():
             solver.solve(warm_start=foreign)
         with pytest.raises(ValueError, match="must be an ADMMResult of this problem"):
             solver.solve(warm_start="previous")
+
+
+def test_update_load_refuses_a_changed_stiffness():
+    msh, tags, V = _block()
+    E = fem.Constant(msh, 2000.0)
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    a = E * ufl.inner(ufl.sym(ufl.grad(u)), ufl.sym(ufl.grad(v))) * ufl.dx
+    L = ufl.dot(fem.Constant(msh, np.array([0.0, -1.0])), v) * ufl.dx
+    top = fem.locate_dofs_topological(V, 1, tags.find(TOP))
+    bcs = [fem.dirichletbc(np.zeros(2), top, V)]
+    problem = ContactProblem(a, L, bcs, tags, BOTTOM, _floor(-0.01))
+    problem.update_load()  # nothing changed: fine
+    E.value = 4000.0
+    with pytest.raises(ValueError, match="bilinear form `a` changed"):
+        problem.update_load()

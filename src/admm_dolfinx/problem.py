@@ -54,6 +54,13 @@ def _argument_space(form: ufl.Form, number: int) -> fem.FunctionSpace:
     raise ValueError("internal: argument not found")  # pragma: no cover
 
 
+def _form_data(form: ufl.Form) -> list[np.ndarray]:
+    """Copies of the values of the Constants and Functions in a UFL form (local parts)."""
+    data = [np.array(c.value, copy=True) for c in form.constants()]
+    data += [np.array(f.x.array, copy=True) for f in form.coefficients()]
+    return data
+
+
 def _check_forms(a: ufl.Form, L: ufl.Form) -> fem.FunctionSpace:
     if not isinstance(a, ufl.Form) or len(a.arguments()) != 2:
         raise TypeError(
@@ -182,6 +189,7 @@ class ContactProblem:
         n_h = self.contact.normal
         ds_c = contact_measure(msh, facet_tags, self.contact_marker)
         self._a = fem.form(a, **opts)
+        self._a_ufl, self._a_data = a, _form_data(a)
         self._k = fem.form(ufl.inner(ufl.dot(u, n_h), ufl.dot(v, n_h)) * ds_c, **opts)
         self._L = fem.form(L, **opts)
 
@@ -230,7 +238,24 @@ class ContactProblem:
         its penalty r* and its factorisation: the next ``solve()`` costs iterations
         only. Changing which dofs are constrained, the forms themselves or the mesh
         needs a new :class:`ContactProblem`.
+
+        Raises:
+            ValueError: On every rank, if a Constant or Function of the bilinear form
+                ``a`` (e.g. Young's modulus) changed since the problem was built: A, r*
+                and the factorisation depend on it, so nothing is reassembled.
         """
+        now = _form_data(self._a_ufl)
+        changed = len(now) != len(self._a_data) or any(
+            x.shape != y.shape or not np.array_equal(x, y)
+            for x, y in zip(now, self._a_data, strict=False)
+        )
+        if self.comm.allreduce(changed, op=MPI.LOR):
+            raise ValueError(
+                "A Constant or Function of the bilinear form `a` changed since the "
+                "ContactProblem was built, so the stiffness A (and with it r* and the "
+                "factorisation) is out of date; update_load() only refreshes the load. "
+                "Build a new ContactProblem and ADMMSolver for the new stiffness."
+            )
         self._assemble_load()
 
     def update_obstacle(self, obstacle: Obstacle) -> None:
