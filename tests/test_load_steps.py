@@ -178,3 +178,37 @@ def test_update_load_refuses_a_changed_stiffness():
     E.value = 4000.0
     with pytest.raises(ValueError, match="bilinear form `a` changed"):
         problem.update_load()
+
+
+def test_solve_picks_up_changed_load_data_without_update_load():
+    mesh_data = _block()
+    floor = _floor(-0.002, 0.002)
+    problem, t, u_top = _problem(*mesh_data, 0.0, 0.003, floor)
+    with ADMMSolver(problem, rtol=1e-10, max_iter=3000) as solver:
+        solver.solve()
+        t.value[:] = (-25.0, 0.0)  # no update_load(): solve() notices the new data
+        u_top.value[:] = (0.0, -0.005)
+        result = solver.solve()
+        fresh = _fresh_solution(solver.penalty, -25.0, 0.005, floor, mesh_data)
+        assert rel_diff(result.u.x.array, fresh.u.x.array) <= 1e-8
+        assert problem.sync_load() is False  # already current
+
+
+def test_sync_load_sees_function_valued_dirichlet_data_and_a_changed_stiffness():
+    msh, tags, V = _block()
+    E = fem.Constant(msh, 2000.0)
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    a = E * ufl.inner(ufl.sym(ufl.grad(u)), ufl.sym(ufl.grad(v))) * ufl.dx
+    L = ufl.dot(fem.Constant(msh, np.array([0.0, 0.0])), v) * ufl.dx
+    motion = fem.Function(V)
+    top = fem.locate_dofs_topological(V, 1, tags.find(TOP))
+    problem = ContactProblem(a, L, [fem.dirichletbc(motion, top)], tags, BOTTOM, _floor(-0.01))
+    assert problem.sync_load() is False
+    motion.x.array[1::2] = -0.02  # the top moves down
+    assert problem.sync_load() is True
+    assert problem.load_norm > 0.0  # the lifting of the new Dirichlet values
+    E.value = 3000.0
+    with pytest.raises(ValueError, match="bilinear form `a` changed"):
+        problem.sync_load()
+    with ADMMSolver(problem, penalty=1e4) as solver, pytest.raises(ValueError, match="`a`"):
+        solver.solve()

@@ -362,6 +362,8 @@ class ADMMSolver:
             RuntimeError: If a linear solve fails.
         """
         problem = self.problem
+        if problem.sync_load():  # L's data or the Dirichlet values changed since
+            logger.info("ADMM: the load data changed; reassembled the load")
         c = problem.contact
         r, alpha = self.penalty, self.alpha
         g = c.gap

@@ -61,6 +61,22 @@ def _form_data(form: ufl.Form) -> list[np.ndarray]:
     return data
 
 
+def _bc_data(bcs: Sequence[fem.DirichletBC]) -> list[np.ndarray]:
+    """Copies of the values of Dirichlet conditions (a Constant's or a Function's)."""
+    data = []
+    for bc in bcs:
+        g = bc.g
+        data.append(np.array(g.value if hasattr(g, "value") else g.x.array, copy=True))
+    return data
+
+
+def _changed(now: list[np.ndarray], before: list[np.ndarray]) -> bool:
+    return len(now) != len(before) or any(
+        x.shape != y.shape or not np.array_equal(x, y, equal_nan=True)
+        for x, y in zip(now, before, strict=False)
+    )
+
+
 def _check_forms(a: ufl.Form, L: ufl.Form) -> fem.FunctionSpace:
     if not isinstance(a, ufl.Form) or len(a.arguments()) != 2:
         raise TypeError(
@@ -192,6 +208,7 @@ class ContactProblem:
         self._a_ufl, self._a_data = a, _form_data(a)
         self._k = fem.form(ufl.inner(ufl.dot(u, n_h), ufl.dot(v, n_h)) * ds_c, **opts)
         self._L = fem.form(L, **opts)
+        self._L_ufl = L
 
         self.A = fem_petsc.assemble_matrix(self._a, bcs=bcs)
         self.A.assemble()
@@ -227,6 +244,7 @@ class ContactProblem:
         #: ‖f‖₂ over the free dofs (the scale of forces in the KKT residuals).
         self.load_norm = free_load.norm()
         free_load.destroy()
+        self._load_data = _form_data(self._L_ufl) + _bc_data(bcs)
 
     # ------------------------------------------------------------- load steps
     def update_load(self) -> None:
@@ -236,27 +254,45 @@ class ContactProblem:
         ``fem.Function``) or the *values* of the Dirichlet conditions. A, NᵀMN and
         the contact set do not depend on them, so a solver built on this problem keeps
         its penalty r* and its factorisation: the next ``solve()`` costs iterations
-        only. Changing which dofs are constrained, the forms themselves or the mesh
-        needs a new :class:`ContactProblem`.
+        only. (``ADMMSolver.solve`` also calls :meth:`sync_load`, so a forgotten call
+        does not leave a stale load.) Changing which dofs are constrained, the forms
+        themselves or the mesh needs a new :class:`ContactProblem`.
 
         Raises:
             ValueError: On every rank, if a Constant or Function of the bilinear form
                 ``a`` (e.g. Young's modulus) changed since the problem was built: A, r*
                 and the factorisation depend on it, so nothing is reassembled.
         """
-        now = _form_data(self._a_ufl)
-        changed = len(now) != len(self._a_data) or any(
-            x.shape != y.shape or not np.array_equal(x, y)
-            for x, y in zip(now, self._a_data, strict=False)
-        )
-        if self.comm.allreduce(changed, op=MPI.LOR):
+        self._check_stiffness_data()
+        self._assemble_load()
+
+    def sync_load(self) -> bool:
+        """Reassemble the load if its data changed since it was assembled; collective.
+
+        Compares the values of the Constants and Functions of ``L`` and of the
+        Dirichlet values with those at the last assembly (an O(n) check).
+
+        Returns:
+            Whether the load was reassembled.
+
+        Raises:
+            ValueError: As :meth:`update_load`, if the stiffness's data changed.
+        """
+        self._check_stiffness_data()
+        stale = _changed(_form_data(self._L_ufl) + _bc_data(self.bcs), self._load_data)
+        if not self.comm.allreduce(stale, op=MPI.LOR):
+            return False
+        self._assemble_load()
+        return True
+
+    def _check_stiffness_data(self) -> None:
+        if self.comm.allreduce(_changed(_form_data(self._a_ufl), self._a_data), op=MPI.LOR):
             raise ValueError(
                 "A Constant or Function of the bilinear form `a` changed since the "
                 "ContactProblem was built, so the stiffness A (and with it r* and the "
-                "factorisation) is out of date; update_load() only refreshes the load. "
+                "factorisation) is out of date; only the load can be updated in place. "
                 "Build a new ContactProblem and ADMMSolver for the new stiffness."
             )
-        self._assemble_load()
 
     def update_obstacle(self, obstacle: Obstacle) -> None:
         """Replace the rigid obstacle, e.g. move it for the next step; collective.
