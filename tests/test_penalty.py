@@ -134,11 +134,11 @@ def test_bad_tolerance(tol):
 def test_trial_pressures_drop_dependent_ones(scene, expected):
     """λ_max's start solves only for affine pressures independent on Γ_C (MPI-safe)."""
     from admm_dolfinx.contact_pencil import ContactSpace
-    from admm_dolfinx.penalty import _affine_pressure_loads
+    from admm_dolfinx.pencil_extremes import affine_pressure_loads
 
     problem = scene().problem()
     space = ContactSpace(problem)
-    loads = _affine_pressure_loads(space)
+    loads = affine_pressure_loads(space)
     try:
         assert len(loads) == expected
         gram = np.array([[a.dot(b) for b in loads] for a in loads])  # global dots
@@ -163,12 +163,12 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
     planned steps taken), each response is one preconditioner application instead: the
     Ritz vectors are finite, B-orthonormal and lie in span{P f_i}."""
     from admm_dolfinx.contact_pencil import ContactSpace
-    from admm_dolfinx.penalty import _affine_pressure_loads
+    from admm_dolfinx.pencil_extremes import affine_pressure_loads
     from admm_dolfinx.preconditioned_eigen import BLOCK_SIZE, _ritz_start, gram_matrix
 
     problem = example1(h=1 / 16).problem()
     space = ContactSpace(problem)
-    loads = _affine_pressure_loads(space)
+    loads = affine_pressure_loads(space)
     flipped = [load.copy() for load in loads]
     for vec in flipped:
         vec.getArray()[::2] *= -1.0
