@@ -19,7 +19,7 @@ run() {
   fi
 }
 
-for b in "${parallel[@]}" work_precision; do run "$py" "benchmarks/$b.py" --quick; done
+for b in "${parallel[@]}" work_precision parallel_scaling; do run "$py" "benchmarks/$b.py" --quick; done
 run "$py" benchmarks/hard_cases.py --small
 run "$py" benchmarks/penalty_accuracy.py
 for b in "${parallel[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done
