@@ -10,7 +10,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 # What `make venv` installs. The PyPI wheel `dolfinx-solver-real` (extra `fenics`) brings
 # DOLFINx, PETSc, SLEPc, MUMPS and MPICH; in a FEniCSx image use
-#   make venv VENV_FLAGS=--system-site-packages EXTRAS=scenes,plot,test
+#   make venv VENV_FLAGS=--system-site-packages EXTRAS=scenes,plot,test,bench
 EXTRAS ?= fenics,scenes,plot,test,bench,dev
 VENV_FLAGS ?=
 # mpiexec of the venv (from the MPICH wheel) unless the environment provides one
