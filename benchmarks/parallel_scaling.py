@@ -8,16 +8,22 @@ form compilation is warmed up first). It also reports the iteration count and �
 so that the answers can be compared. The speed-up of a phase is its time on 1
 process over its time on p.
 
+Each process runs ``--threads`` BLAS/OpenMP threads (default 1, as ``make`` sets):
+with more, p processes on a p-core machine oversubscribe it (measure it with
+``--threads 2``).
+
     python benchmarks/parallel_scaling.py            # Example 1 h=1/256, Example 3 level 3
     python benchmarks/parallel_scaling.py --quick    # small meshes (smoke test)
+    python benchmarks/parallel_scaling.py --threads 2  # 2 threads per process
 
-Writes out_benchmarks/parallel_scaling.csv.
+Writes out_benchmarks/parallel_scaling.csv (``_threads2.csv`` etc. with ``--threads``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -67,13 +73,14 @@ def worker(name: str, quick: bool, repeat: int) -> None:
         print("RESULT " + json.dumps({"answer": answer, "seconds": best}), flush=True)
 
 
-def run(name: str, nprocs: int, quick: bool, repeat: int) -> dict:
+def run(name: str, nprocs: int, quick: bool, repeat: int, threads: int) -> dict:
     mpiexec = Path(sys.executable).parent / "mpiexec"
     cmd = [sys.executable, "-m", "mpi4py", __file__, "--worker", name, "--repeat", str(repeat)]
     if quick:
         cmd.append("--quick")
     cmd = [str(mpiexec), "-n", str(nprocs), *cmd]
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    env = os.environ | {"OMP_NUM_THREADS": str(threads), "OPENBLAS_NUM_THREADS": str(threads)}
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
     if proc.returncode != 0 or not lines:
         sys.stderr.write(proc.stdout + proc.stderr)
@@ -86,6 +93,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="small meshes (smoke test)")
     parser.add_argument("--nprocs", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=1, help="threads per process")
     parser.add_argument("--out", default="out_benchmarks")
     parser.add_argument("--worker", metavar="CASE", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -102,12 +110,13 @@ def main() -> None:
     for name in QUICK_CASES if args.quick else CASES:
         base = None
         for nprocs in args.nprocs:
-            data = run(name, nprocs, args.quick, args.repeat)
+            data = run(name, nprocs, args.quick, args.repeat, args.threads)
             base = base or data
             answer, seconds = data["answer"], data["seconds"]
             total = sum(seconds[p] for p in PHASES[1:])  # what a user's solve costs
             base_total = sum(base["seconds"][p] for p in PHASES[1:])
             row = {"mesh": name, "dofs": answer["dofs"], "processes": nprocs}
+            row["threads"] = args.threads
             row |= {"r*": f"{answer['r']:.6g}", "iterations": answer["iterations"]}
             ratio = answer["norm_u"] / base["answer"]["norm_u"]
             row["‖u‖ vs first"] = f"{abs(ratio - 1):.1e}"
@@ -118,7 +127,8 @@ def main() -> None:
             rows.append(row)
             print(f"{name}, {nprocs} process(es): done", flush=True)
     print()
-    print_and_save(rows, Path(args.out) / "parallel_scaling.csv")
+    suffix = "" if args.threads == 1 else f"_threads{args.threads}"
+    print_and_save(rows, Path(args.out) / f"parallel_scaling{suffix}.csv")
 
 
 if __name__ == "__main__":
