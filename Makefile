@@ -15,6 +15,7 @@ EXTRAS ?= fenics,scenes,plot,test,bench,dev
 VENV_FLAGS ?=
 # mpiexec of the venv (from the MPICH wheel) unless the environment provides one
 MPIEXEC ?= $(if $(wildcard $(VENV)/bin/mpiexec),$(VENV)/bin/mpiexec,mpiexec)
+export MPIEXEC
 OUT ?= out_reproduce
 PYTEST := -m pytest -q -p no:cacheprovider
 export PYVISTA_OFF_SCREEN ?= true

@@ -74,11 +74,12 @@ def worker(name: str, quick: bool, repeat: int) -> None:
 
 
 def run(name: str, nprocs: int, quick: bool, repeat: int, threads: int) -> dict:
-    mpiexec = Path(sys.executable).parent / "mpiexec"
+    # the Makefile's mpiexec, else the one installed next to this Python (the MPICH wheel)
+    mpiexec = os.environ.get("MPIEXEC") or str(Path(sys.executable).parent / "mpiexec")
     cmd = [sys.executable, "-m", "mpi4py", __file__, "--worker", name, "--repeat", str(repeat)]
     if quick:
         cmd.append("--quick")
-    cmd = [str(mpiexec), "-n", str(nprocs), *cmd]
+    cmd = [mpiexec, "-n", str(nprocs), *cmd]
     env = os.environ | {"OMP_NUM_THREADS": str(threads), "OPENBLAS_NUM_THREADS": str(threads)}
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]

@@ -5,13 +5,15 @@ Used by ``make test`` (and so by CI). Each demo writes into a temporary folder.
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-MPIEXEC = Path(sys.executable).parent / "mpiexec"
+# the Makefile's mpiexec, else the one installed next to this Python (the MPICH wheel)
+MPIEXEC = os.environ.get("MPIEXEC") or str(Path(sys.executable).parent / "mpiexec")
 TIMEOUT = 600  # seconds per demo run
 
 # demo script -> arguments for its smallest size
@@ -39,7 +41,7 @@ def main() -> int:
                     f"{tmp}/out",
                 ]
                 if nproc > 1:
-                    cmd = [str(MPIEXEC), "-n", str(nproc), *cmd]
+                    cmd = [MPIEXEC, "-n", str(nproc), *cmd]
                 print(f"$ {' '.join(cmd)}", flush=True)
                 try:
                     proc = subprocess.run(cmd, check=False, timeout=TIMEOUT)

@@ -10,14 +10,14 @@ from mpi4py import MPI
 from admm_dolfinx import ADMMSolver, ContactProblem, Obstacle, Plane
 from admm_dolfinx.petsc import factorization_count
 
-from conftest import rel_diff
+from conftest import gather_nodal, rel_diff
 
 LEFT, TOP, BOTTOM = 1, 2, 3
 
 
-def _block():
+def _block(comm=MPI.COMM_WORLD):
     """A 2 × 1 elastic block above a floor, with its facets tagged."""
-    msh = mesh.create_rectangle(MPI.COMM_WORLD, [[0.0, 0.0], [2.0, 1.0]], [24, 12])
+    msh = mesh.create_rectangle(comm, [[0.0, 0.0], [2.0, 1.0]], [24, 12])
     marked = [
         (LEFT, lambda x: np.isclose(x[0], 0.0)),
         (TOP, lambda x: np.isclose(x[1], 1.0)),
@@ -212,3 +212,23 @@ def test_sync_load_sees_function_valued_dirichlet_data_and_a_changed_stiffness()
         problem.sync_load()
     with ADMMSolver(problem, penalty=1e4) as solver, pytest.raises(ValueError, match="`a`"):
         solver.solve()
+
+
+def test_warm_started_load_steps_agree_with_a_serial_run():
+    """The whole step sequence on all ranks against the same on each rank alone."""
+    finals = []
+    for comm in (MPI.COMM_SELF, MPI.COMM_WORLD):
+        problem, t, u_top = _problem(*_block(comm), -20.0, 0.003, _floor(-0.002, 0.002))
+        with ADMMSolver(problem, penalty=14000.0, rtol=1e-12, max_iter=3000) as solver:
+            result = solver.solve()
+            for step in (1, 2):
+                t.value[:] = (-20.0 - 5.0 * step, 0.0)
+                u_top.value[:] = (0.0, -0.003 - 0.0005 * step)  # picked up by solve()
+                problem.update_obstacle(_floor(-0.002 + 0.0005 * step, 0.002))
+                result = solver.solve(warm_start=result)
+        finals.append((gather_nodal(result.u), result.iterations))
+    (coords_serial, u_serial), its_serial = finals[0]
+    (coords_parallel, u_parallel), its_parallel = finals[1]
+    np.testing.assert_allclose(coords_parallel, coords_serial)
+    assert rel_diff(u_parallel, u_serial) <= 1e-10
+    assert abs(its_parallel - its_serial) <= 1  # the same iterates up to round-off

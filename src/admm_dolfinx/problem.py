@@ -77,6 +77,15 @@ def _changed(now: list[np.ndarray], before: list[np.ndarray]) -> bool:
     )
 
 
+def _check_obstacle(obstacle: Obstacle, gdim: int) -> None:
+    if not isinstance(obstacle, Obstacle):
+        raise TypeError(
+            f"`obstacle` must be an admm_dolfinx.Obstacle (Plane, Ball or a subclass), "
+            f"got {type(obstacle).__name__}."
+        )
+    obstacle.check_dimension(gdim)
+
+
 def _check_forms(a: ufl.Form, L: ufl.Form) -> fem.FunctionSpace:
     if not isinstance(a, ufl.Form) or len(a.arguments()) != 2:
         raise TypeError(
@@ -159,12 +168,7 @@ class ContactProblem:
         t_start = time.perf_counter()
         V = _check_forms(a, L)
         msh = V.mesh
-        if not isinstance(obstacle, Obstacle):
-            raise TypeError(
-                f"`obstacle` must be an admm_dolfinx.Obstacle (Plane, Ball or a subclass), "
-                f"got {type(obstacle).__name__}."
-            )
-        obstacle.check_dimension(msh.geometry.dim)
+        _check_obstacle(obstacle, msh.geometry.dim)
         if not isinstance(facet_tags, mesh.MeshTags):
             raise TypeError(f"`facet_tags` must be dolfinx MeshTags, got {type(facet_tags)}.")
         if _cpp(facet_tags.topology) is not _cpp(msh.topology):
@@ -228,11 +232,10 @@ class ContactProblem:
         (A + rK) u = ... is load_A + r lift_K for any r.
         """
         bcs = self.bcs
-        for vec, form in ((self._load, self._L), (self._lift_k, None)):
+        for vec in (self._load, self._lift_k):
             with vec.localForm() as local:
                 local.set(0.0)
-            if form is not None:
-                fem_petsc.assemble_vector(vec, form)
+        fem_petsc.assemble_vector(self._load, self._L)
         fem_petsc.apply_lifting(self._load, [self._a], bcs=[bcs])
         self._load.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         fem_petsc.set_bc(self._load, bcs)
@@ -308,12 +311,7 @@ class ContactProblem:
             ValueError: If it has the wrong dimension or its gap is NaN or −inf at some
                 contact node; the problem then keeps its previous obstacle.
         """
-        if not isinstance(obstacle, Obstacle):
-            raise TypeError(
-                f"`obstacle` must be an admm_dolfinx.Obstacle (Plane, Ball or a subclass), "
-                f"got {type(obstacle).__name__}."
-            )
-        obstacle.check_dimension(self.gdim)
+        _check_obstacle(obstacle, self.gdim)
         c = self.contact
         c.gap = compute_gap(obstacle, c.coordinates, c.normals, self.comm)
         self.obstacle = obstacle
