@@ -16,9 +16,9 @@ from conftest import gather_nodal, rel_diff
 parallel_only = pytest.mark.skipif(MPI.COMM_WORLD.size == 1, reason="needs mpiexec -n >= 2")
 
 
-def _solve(comm, h, mesher, **options):
+def _solve(comm, h, mesher, penalty=3000.0, **options):
     problem = example1(comm, h=h, mesher=mesher).problem()
-    with ADMMSolver(problem, penalty=3000.0, rtol=1e-10, max_iter=2000, **options) as solver:
+    with ADMMSolver(problem, penalty=penalty, rtol=1e-10, max_iter=2000, **options) as solver:
         result = solver.solve()
     coords, u = gather_nodal(result.u)
     c = problem.contact
@@ -51,5 +51,17 @@ def test_parallel_matches_serial(mesher, options):
     assert par.history["accelerated"] == ser.history["accelerated"]
     for key in ("fpr", "equilibrium", "du"):
         np.testing.assert_allclose(par.history[key], ser.history[key], rtol=1e-6, atol=1e-14)
+    assert rel_diff(up, us) <= 1e-10
+    assert rel_diff(lp, ls) <= 1e-10
+
+
+@parallel_only
+def test_parallel_auto_penalty_matches_serial():
+    """penalty="auto" in 2D: r* dense on both; the serial ADMM solves with the condensed
+    factorisation, the distributed one with a factorisation of A + r*K."""
+    par, _, up, _, lp = _solve(MPI.COMM_WORLD, 1 / 16, "gmsh", penalty="auto")
+    ser, _, us, _, ls = _solve(MPI.COMM_SELF, 1 / 16, "gmsh", penalty="auto")
+    assert par.penalty == pytest.approx(ser.penalty, rel=1e-10)
+    assert par.iterations == ser.iterations
     assert rel_diff(up, us) <= 1e-10
     assert rel_diff(lp, ls) <= 1e-10

@@ -28,8 +28,11 @@ def test_example1_against_algorithm5(h):
     problem = example1(h=h).problem()
     ev = algorithm5_eigenvalues(problem)
     assert ev.size == problem.num_contact_nodes
-    _compare(estimate_penalty(problem, tol=TIGHT), ev[0], ev[-1], 1e-6)
-    loose = estimate_penalty(problem)  # default tolerance
+    dense = estimate_penalty(problem)  # 2D default: dense, from the condensed factorisation
+    assert dense.details["method"] == "dense"
+    _compare(dense, ev[0], ev[-1], 1e-9)
+    _compare(estimate_penalty(problem, tol=TIGHT, method="iterative"), ev[0], ev[-1], 1e-6)
+    loose = estimate_penalty(problem, method="iterative")  # default tolerance
     _compare(loose, ev[0], ev[-1], 0.05)
     assert loose.solves < 60
 
@@ -64,10 +67,13 @@ def test_floating_curved_body(level):
     problem = example2(level=level).problem()
     lam = rotated_pencil_eigenvalues(problem)
     assert np.isinf(lam[-1]) and np.isfinite(lam[-2])  # exactly one rigid mode seen by Γ_C
-    est = estimate_penalty(problem, tol=TIGHT)
+    dense = estimate_penalty(problem)
+    assert dense.details["method"] == "dense" and dense.details["rigid_modes"] == 1
+    _compare(dense, lam[0], lam[-2], 1e-9)
+    est = estimate_penalty(problem, tol=TIGHT, method="iterative")
     assert est.details["rigid_modes"] == 1
     _compare(est, lam[0], lam[-2], 1e-6)
-    loose = estimate_penalty(problem)
+    loose = estimate_penalty(problem, method="iterative")
     _compare(loose, lam[0], lam[-2], 0.05)
     # the multigrid λ_max does not apply to a floating body: it falls back, and says so
     assert loose.details["lambda_max_method"] == "factorised"
@@ -78,23 +84,46 @@ def test_floating_curved_body(level):
     assert result.num_active > 0
 
 
+def _cholesky_counts():
+    sym, num = PETSc.Log.Event("MatCholFctrSym"), PETSc.Log.Event("MatCholFctrNum")
+    return sym.getPerfInfo()["count"], num.getPerfInfo()["count"]
+
+
+def test_auto_penalty_2d_factorises_the_body_once():
+    """2D, one process: one sparse factorisation (A condensed onto Γ_C) gives r* and
+    serves every ADMM step at r*; under MPI the ADMM factorises A + r*K besides."""
+    problem = example1(h=1 / 16).problem()
+    sym0, num0 = _cholesky_counts()
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+        estimate = solver.penalty_estimate
+        operator = type(solver.operator).__name__
+    sym1, num1 = _cholesky_counts()
+    assert estimate.details["method"] == "dense" and result.penalty == estimate.r
+    serial = problem.comm.size == 1
+    assert operator == ("CondensedOperator" if serial else "PenalisedOperator")
+    assert (sym1 - sym0, num1 - num0) == ((1, 1) if serial else (2, 2))
+    assert result.timings["penalty"] == estimate.time
+
+
 @pytest.mark.parametrize("tol", [1e-2, 1e-8])
 def test_auto_penalty_shares_one_symbolic_factorisation(tol):
-    """Counted from PETSc's log (Cholesky events): the whole body is analysed once.
-    At loose tolerance it is factorised once, at r* (λ_max by multigrid; each layer
-    along Γ_C adds one small factorisation); at tight tolerance also at r_a and for
-    the exact Schur complement."""
-    problem = example1(h=1 / 16).problem()
-    sym, num = PETSc.Log.Event("MatCholFctrSym"), PETSc.Log.Event("MatCholFctrNum")
-    sym0, num0 = sym.getPerfInfo()["count"], num.getPerfInfo()["count"]
+    """3D (iterative r*), counted from PETSc's log (Cholesky events): the whole body is
+    analysed once. At loose tolerance it is factorised once, at r* (λ_max by
+    multigrid; each layer along Γ_C adds one small factorisation); at tight tolerance
+    also at r_a and for the exact Schur complement."""
+    problem = example3(level=0).problem()
+    sym0, num0 = _cholesky_counts()
     with ADMMSolver(problem, penalty_tol=tol) as solver:  # penalty="auto" is the default
         result = solver.solve()
         estimate = solver.penalty_estimate
+    sym1, num1 = _cholesky_counts()
     assert estimate is not None and result.penalty == estimate.r
+    assert estimate.details["method"] == "iterative"
     steps = estimate.details["layer_steps"]
     assert (steps > 0) == (tol > 1e-6)
-    assert sym.getPerfInfo()["count"] - sym0 == 1 + steps
-    assert num.getPerfInfo()["count"] - num0 == (1 if steps else 3) + steps
+    assert sym1 - sym0 == 1 + steps
+    assert num1 - num0 == (1 if steps else 3) + steps
     assert estimate.details["lambda_max_method"] == ("multigrid" if steps else "factorised")
     assert result.timings["penalty"] == estimate.time
 
@@ -102,15 +131,24 @@ def test_auto_penalty_shares_one_symbolic_factorisation(tol):
 def test_parallel_estimate_matches_serial():
     problem = example1(h=1 / 16).problem()
     serial_problem = example1(MPI.COMM_SELF, h=1 / 16).problem()
-    est = estimate_penalty(problem, tol=TIGHT)
-    serial = estimate_penalty(serial_problem, tol=TIGHT)
+    # 2D default: dense, from the condensed factorisation (computed on all ranks, the
+    # Schur complement on rank 0): the same r* to round-off
+    dense, dense_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
+    assert dense.details["method"] == "dense"
+    assert dense.r == pytest.approx(dense_serial.r, rel=1e-10)
+    assert dense.lambda_min == pytest.approx(dense_serial.lambda_min, rel=1e-10)
+    assert dense.lambda_max == pytest.approx(dense_serial.lambda_max, rel=1e-10)
+    est = estimate_penalty(problem, tol=TIGHT, method="iterative")
+    serial = estimate_penalty(serial_problem, tol=TIGHT, method="iterative")
     assert est.r == pytest.approx(serial.r, rel=1e-6)
     assert est.lambda_min == pytest.approx(serial.lambda_min, rel=1e-6)
     assert est.lambda_max == pytest.approx(serial.lambda_max, rel=1e-6)
+    assert est.r == pytest.approx(dense.r, rel=1e-6)
     # default tolerance: λ_max by multigrid, whose aggregates depend on the partition;
     # LOBPCG stops at a residual of tol/2, so λ_max (and r*) move within its accuracy
     # (≤ 2e-4 against the dense reference, benchmarks/penalty_accuracy.py)
-    loose, loose_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
+    loose = estimate_penalty(problem, method="iterative")
+    loose_serial = estimate_penalty(serial_problem, method="iterative")
     assert loose.details["lambda_max_method"] == "multigrid"
     assert loose.r == pytest.approx(loose_serial.r, rel=2e-4)
     serial_problem.destroy()

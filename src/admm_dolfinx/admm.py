@@ -58,6 +58,7 @@ from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx.anderson import AndersonMixer, weighted_norm
+from admm_dolfinx.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.kkt import KKTResiduals, _ratio, compute_kkt_residuals, gap_residuals
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.penalty import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_penalty
@@ -196,14 +197,22 @@ class ADMMSolver:
         alpha: Over-relaxation α ∈ (0, 2); 1 is plain ADMM.
         anderson: Anderson memory k ≥ 0; 0 switches acceleration off.
         stopping: ``"kkt"`` or ``"change"`` (see the module docstring).
-        penalty_tol: Eigenvalue tolerance of the r* estimate (``penalty="auto"``).
+        penalty_tol: Eigenvalue tolerance of the iterative r* estimate (``penalty="auto"``
+            in 3D; the 2D one is exact).
         petsc_options: Options of the step-1 solver, overriding MUMPS Cholesky
             (``{"pc_type": "lu"}``, ``{"mat_mumps_icntl_14": 50}``, ...).
         petsc_options_prefix: Options prefix of the step-1 KSP; a unique one by default.
+        condensed: Solve step 1 with one factorisation of A condensed onto the contact
+            dofs (:class:`~admm_dolfinx.condensed.CondensedOperator`), where a new r
+            costs a dense factorisation of size ≈ m instead of a sparse one. ``None``
+            (default): when ``penalty="auto"`` in 2D on one process with a MUMPS
+            factorisation, which then also gives r* exactly; ``True``: always (2D
+            sizes of Γ_C, one process, MUMPS; e.g. for sweeps over r); ``False``: never.
 
     Raises:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
-            (0, 2), a negative Anderson memory, or an unknown mode or stopping test.
+            (0, 2), a negative Anderson memory, or an unknown mode or stopping test;
+            for ``condensed=True`` under MPI or without a MUMPS factorisation.
 
     r* and the factorisation are computed here, once. They depend on A and NᵀMN only,
     so :meth:`solve` may be called again after
@@ -229,6 +238,7 @@ class ADMMSolver:
         penalty_tol: float = DEFAULT_PENALTY_TOL,
         petsc_options: Mapping[str, Any] | None = None,
         petsc_options_prefix: str | None = None,
+        condensed: bool | None = None,
     ):
         if not isinstance(problem, ContactProblem):
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
@@ -264,14 +274,26 @@ class ADMMSolver:
         self.anderson = int(anderson)
         self.stopping = stopping
         self.prefix = petsc_options_prefix or unique_prefix("admm_")
-        self.operator = PenalisedOperator(problem, self.prefix, petsc_options)
+        possible = problem.comm.size == 1 and condensed_factor_applies(
+            problem, petsc_options, any_dimension=condensed is True
+        )
+        if condensed is True and not possible:
+            raise ValueError(
+                "condensed=True needs one process and a MUMPS factorisation (PETSc "
+                "solves with a Schur complement serially only); pass condensed=None."
+            )
+        if condensed is None:
+            condensed = auto and possible
+        operator_class = CondensedOperator if condensed else PenalisedOperator
+        self.operator = operator_class(problem, self.prefix, petsc_options)
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
         if auto:
-            # r* gets this solver's own operator: at the default tolerance it factorises
-            # nothing of the whole body; where it does (tight tolerance, floating body:
-            # at an auxiliary r_a), the factorisation at r* below reuses its symbolic
-            # analysis.
+            # r* gets this solver's own operator: a condensed one gives r* densely and
+            # serves the ADMM at r* with no new sparse factorisation. Otherwise, at the
+            # default tolerance r* factorises nothing of the whole body; where it does
+            # (tight tolerance, floating body: at an auxiliary r_a), the factorisation
+            # at r* below reuses its symbolic analysis.
             self.penalty_estimate = estimate_penalty(
                 problem,
                 tol=penalty_tol,

@@ -13,6 +13,15 @@ the default tolerance, the full-space pencil with LOBPCG. How, and at which
 tolerance, is described in :mod:`admm_dolfinx.pencil_extremes`; this module chooses
 between the methods and assembles the estimate.
 
+In 2D with a MUMPS factorisation (``method="auto"``) r* is exact at any tolerance:
+one factorisation of A condensed onto the contact dofs
+(:class:`~admm_dolfinx.condensed.CondensedOperator`) gives the dense Schur complement
+S_C, from which the whole pencil follows densely
+(:func:`~admm_dolfinx.pencil_extremes.extremes_from_schur`); the ADMM then solves with
+the same factorisation, so r* costs only the dense eigenvalue problem beyond it.
+Otherwise (3D, where S_C is too large to be dense, or another step-1 solver) the
+two extremes are computed iteratively:
+
 Factorisations of the whole body: none at the default tolerance (the ADMM then
 factorises A + r* NᵀMN once).  At tolerances ≤ 1e-6, Â and A + r_a NᵀMN, which have
 A's sparsity pattern, are factorised in one
@@ -21,8 +30,11 @@ refactorises at r* - so the symbolic analysis (ordering) is computed once and ea
 costs one numeric factorisation.  :attr:`PenaltyEstimate.solves` counts operator
 applications: substitutions with a factorisation, or AMG V-cycles.
 
-Partition dependence: at tolerances ≤ 1e-6 r* is the same on any number of processes
-to round-off (tested to 1e-6 under ``mpiexec -n 2``).  At the default tolerance the
+Partition dependence: the dense 2D r* is the same on any number of processes to
+round-off (tested to 1e-10; under MPI the condensed factorisation serves only r*,
+because PETSc solves with a Schur complement serially only, and the ADMM factorises
+A + r*K). Iteratively, at tolerances ≤ 1e-6, r* is the same on any number of
+processes to round-off (tested to 1e-6 under ``mpiexec -n 2``).  At the default tolerance the
 multigrid aggregates depend on the partition, and r* with them, by about the
 error of θ (a few 1e-5 measured; tested ≤ 2e-4 under ``mpiexec -n 2``);
 the ADMM converges to the same solution.
@@ -39,6 +51,7 @@ from dolfinx.common import Timer
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
+from admm_dolfinx.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.contact_pencil import (
     ContactSpace,
     SchurOperator,
@@ -48,6 +61,7 @@ from admm_dolfinx.contact_pencil import (
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.pencil_extremes import (
     NeedsFactorisation,
+    extremes_from_schur,
     lambda_max_factorised,
     lambda_max_multigrid,
     lambda_min_from_layers,
@@ -55,7 +69,7 @@ from admm_dolfinx.pencil_extremes import (
 from admm_dolfinx.petsc import unique_prefix
 from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["DEFAULT_PENALTY_TOL", "PenaltyEstimate", "estimate_penalty"]
+__all__ = ["DEFAULT_PENALTY_TOL", "PENALTY_METHODS", "PenaltyEstimate", "estimate_penalty"]
 
 logger = get_logger(__name__)
 
@@ -66,6 +80,9 @@ DEFAULT_PENALTY_TOL = 1e-2
 #: Above this eigenvalue tolerance λ_min comes from layers along Γ_C (no factorisation
 #: of the whole body); at or below it, from the exact Schur complement.
 _LOCAL_MAX_TOL = 1e-6
+
+#: ``method`` values of :func:`estimate_penalty`.
+PENALTY_METHODS = ("auto", "dense", "iterative")
 
 
 @dataclass
@@ -112,7 +129,8 @@ def estimate_penalty(
     *,
     tol: float = DEFAULT_PENALTY_TOL,
     max_it: int = 500,
-    operator: PenalisedOperator | None = None,
+    method: str = "auto",
+    operator: PenalisedOperator | CondensedOperator | None = None,
     petsc_options: dict | None = None,
     petsc_options_prefix: str | None = None,
 ) -> PenaltyEstimate:
@@ -120,10 +138,16 @@ def estimate_penalty(
 
     Args:
         problem: The contact problem.
-        tol: Relative tolerance of both eigenvalue solves (SLEPc ``eps_tol``).
+        tol: Relative tolerance of both eigenvalue solves (SLEPc ``eps_tol``) of the
+            iterative method; the dense one is exact.
         max_it: Maximum Krylov–Schur restarts.
-        operator: A :class:`PenalisedOperator` to use (and leave factorised at r_a), so
-            that the ADMM reuses its symbolic factorisation; a private one otherwise.
+        method: ``"dense"`` (from the condensed factorisation: exact, 2D-sized Γ_C),
+            ``"iterative"`` (SLEPc, see the module docstring) or ``"auto"``: dense in
+            2D with a MUMPS factorisation, iterative otherwise.
+        operator: The ADMM's operator, to share factorisations: a
+            :class:`CondensedOperator` (dense method; nothing is factorised here), or
+            a :class:`PenalisedOperator` (iterative method: left factorised at r_a, its
+            symbolic factorisation reused by the ADMM). A private one otherwise.
         petsc_options: Options of the factorisations (MUMPS Cholesky by default).
         petsc_options_prefix: Prefix; sub-objects get ``schur_``, ``lmin_``, ``lmax_``.
 
@@ -131,20 +155,31 @@ def estimate_penalty(
         The estimate.
 
     Raises:
-        ValueError: For a tolerance outside (0, 1).
+        ValueError: For a tolerance outside (0, 1) or an unknown method.
         RuntimeError: If an eigenvalue solve does not converge.
     """
     if not (0.0 < tol < 1.0):
         raise ValueError(f"tol must lie in (0, 1), got {tol}.")
+    if method not in PENALTY_METHODS:
+        raise ValueError(f"method must be one of {PENALTY_METHODS}, got {method!r}.")
     prefix = petsc_options_prefix or unique_prefix("penalty_")
     t_start = time.perf_counter()
+    if (
+        isinstance(operator, CondensedOperator)
+        or method == "dense"
+        or (method == "auto" and condensed_factor_applies(problem, petsc_options))
+    ):
+        condensed = operator if isinstance(operator, CondensedOperator) else None
+        lambda_min, lambda_max, details = _dense_extremes(problem, condensed, prefix, petsc_options)
+        details["tol"] = 0.0
+        return _finish(lambda_min, lambda_max, details, t_start)
     space = ContactSpace(problem)
     own_operator = operator is None
     if operator is None:
         operator = PenalisedOperator(problem, prefix, petsc_options)
     schur = None
     vectors: list[PETSc.Vec] = []
-    details: dict[str, Any] = {"tol": tol, "m": space.m}
+    details: dict[str, Any] = {"method": "iterative", "tol": tol, "m": space.m}
     try:
         # ---- λ_min = 1 / μ_max(M^{-½} S M^{-½})
         with Timer("admm_dolfinx: r* lambda_min"):
@@ -192,6 +227,49 @@ def estimate_penalty(
         if own_operator:
             operator.destroy()
 
+    return _finish(lambda_min, lambda_max, details, t_start)
+
+
+def _dense_extremes(problem, condensed, prefix, petsc_options):
+    """λ_min, λ_max from the condensed factorisation (a private one if None); collective."""
+    own = condensed is None
+    t0 = time.perf_counter()
+    if own:
+        condensed = CondensedOperator(problem, prefix + "schur_", petsc_options)
+    try:
+        t1 = time.perf_counter()
+        outcome: tuple | str
+        if problem.comm.rank == 0:
+            try:
+                with Timer("admm_dolfinx: r* dense pencil"):
+                    outcome = extremes_from_schur(
+                        condensed.schur, condensed.k_cc, condensed.support.weights
+                    )
+            except RuntimeError as error:
+                outcome = str(error)
+        else:
+            outcome = ""
+        outcome = problem.comm.bcast(outcome, root=0)
+        if isinstance(outcome, str):
+            raise RuntimeError(outcome)
+        lambda_min, lambda_max, rigid = outcome
+        details = {
+            "method": "dense",
+            "m": problem.contact.num_global,
+            "c": condensed.support.size,
+            "rigid_modes": rigid,
+            "solves_min": 0,
+            "solves_max": 0,
+            "time_factorization": t1 - t0 if own else 0.0,
+            "time_dense": time.perf_counter() - t1,
+        }
+    finally:
+        if own:
+            condensed.destroy()
+    return lambda_min, lambda_max, details
+
+
+def _finish(lambda_min, lambda_max, details, t_start) -> PenaltyEstimate:
     lambda_max = max(lambda_max, lambda_min)
     r = 1.0 / math.sqrt(lambda_min * lambda_max)
     estimate = PenaltyEstimate(

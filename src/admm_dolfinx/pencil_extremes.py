@@ -67,6 +67,7 @@ from admm_dolfinx.preconditioned_eigen import (
 __all__ = [
     "NeedsFactorisation",
     "affine_pressure_loads",
+    "extremes_from_schur",
     "lambda_max_factorised",
     "lambda_max_multigrid",
     "lambda_min_from_layers",
@@ -312,3 +313,48 @@ def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
         time_multigrid_setup=counts.get("multigrid_setup", 0.0),
     )
     return lambda_max, info
+
+
+def extremes_from_schur(
+    schur: np.ndarray, k_cc: np.ndarray, weights: np.ndarray
+) -> tuple[float, float, int]:
+    """λ_min, λ_max and the rigid motions seen by Γ_C, densely from S_C; exact.
+
+    With W = Nᵀ M^{½} on C, the pencil's eigenvalues are θ = λ / (1 + r_a λ) of the
+    m × m compliance matrix T = Wᵀ (S_C + r_a K_CC)⁻¹ W (the dense form of
+    :class:`~admm_dolfinx.contact_pencil.ComplianceOperator`); rigid motions give
+    θ = 1/r_a. A first r_a = tr S_C / tr K_CC (about 1/λ_min) locates λ_max, a second
+    r_a = 1/λ_max gives every λ to round-off (no eigenvalue is amplified by
+    λ = θ/(1 − r_a θ) by more than 4x, and rigid motions, at 1 − r_a θ ≈ 1e-16, are far
+    below _RIGID_TOL while the others are above 1/2).
+
+    Args:
+        schur: S_C, symmetric c × c (singular for a floating body).
+        k_cc: K = NᵀMN restricted to C × C.
+        weights: W, c × m.
+
+    Returns:
+        λ_min, λ_max (over the finite eigenvalues) and the number of rigid motions.
+
+    Raises:
+        RuntimeError: If S_C + r_a K_CC is not positive definite (A_II singular: a
+            motion of the body that Γ_C does not see), or every mode is rigid.
+    """
+    r_a = float(np.trace(schur) / np.trace(k_cc))
+    for _attempt in range(2):
+        try:
+            lower = np.linalg.cholesky(schur + r_a * k_cc)
+        except np.linalg.LinAlgError as error:
+            raise RuntimeError(
+                "The Schur complement of A onto the contact dofs plus r NᵀMN is not "
+                "positive definite: the body has a motion that neither the Dirichlet "
+                "conditions nor Γ_C restrain."
+            ) from error
+        half = np.linalg.solve(lower, weights)  # L⁻¹ W, so that T = (L⁻¹W)ᵀ(L⁻¹W)
+        theta = np.linalg.eigvalsh(half.T @ half)
+        finite = theta[1.0 - r_a * theta > _RIGID_TOL]
+        if finite.size == 0:
+            raise RuntimeError("Every contact mode is a rigid motion of the body.")
+        lam = finite / (1.0 - r_a * finite)
+        r_a = 1.0 / lam[-1]
+    return float(lam[0]), float(lam[-1]), int(theta.size - finite.size)

@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from admm_dolfinx.admm import ADMMConvergenceError, ADMMSolver
+from admm_dolfinx.condensed import condensed_factor_applies
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["PenaltySweep", "paper_penalty_grid", "sample_penalty"]
@@ -104,9 +105,14 @@ def sample_penalty(
     iterations = np.empty(r_values.size, dtype=np.int64)
     converged = np.zeros(r_values.size, dtype=bool)
     t0 = time.perf_counter()
+    # one condensed factorisation serves every r where it can (2D, one process)
+    condensed = None
+    if problem.comm.size == 1 and condensed_factor_applies(problem, petsc_options):
+        condensed = True
     with ADMMSolver(
         problem,
         penalty=float(r_values[0]),
+        condensed=condensed,
         mode=mode,
         rtol=rtol,
         max_iter=max_iter,

@@ -1,0 +1,322 @@
+"""A + r NᵀMN through one factorisation of A condensed onto the contact dofs.
+
+MUMPS factorises A, eliminating every dof except the set C that the contact normals
+act on (the support of K = NᵀMN: at each contact node, the components in which its
+normal ñ_j is non-zero), and returns the dense Schur complement
+
+    S_C = A_CC − A_CI A_II⁻¹ A_IC        (c × c, c = |C| ≈ m, or gdim·m for curved Γ_C).
+
+Since K lives on C × C, A + rK = [[A_II, A_IC], [A_CI, A_CC + r K_CC]] has the Schur
+complement S_C + r K_CC, so
+
+* a new r costs a dense c × c Cholesky factorisation, not a sparse one: a solve is
+  MUMPS's condensation of the right-hand side, a dense solve, and MUMPS's expansion
+  (PETSc's ``MatFactorSetSchurIS`` interface);
+* the r* estimate reads the whole contact pencil off S_C densely (exact, see
+  :func:`admm_dolfinx.pencil_extremes.extremes_from_schur`).
+
+Keeping C to the end constrains MUMPS's ordering, which makes this factorisation
+dearer than that of A + rK: measured 1.1-1.5× in 2D (``benchmarks/penalty_cost.py``),
+where C is a curve of O(n^½) dofs, and 1.4× in 3D, where C is a surface of O(n^⅔)
+dofs and the dense front of C dominates. :func:`admm_dolfinx.penalty.estimate_penalty`
+therefore uses it in 2D only.
+
+PETSc computes the Schur complement in parallel (all of C on rank 0), but solves with
+it on one process only; under MPI the class serves the r* estimate and the ADMM
+factorises A + r*K separately (:attr:`CondensedOperator.can_solve`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx.common import Timer
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from admm_dolfinx.petsc import (
+    DEFAULT_FACTOR_OPTIONS,
+    check_solve,
+    prefixed_options,
+)
+from admm_dolfinx.problem import ContactProblem
+
+__all__ = ["CondensedOperator", "ContactSupport", "condensed_factor_applies"]
+
+# ---------------------------------------------------------------------------------
+# PETSc's Schur-complement interface of factored matrices, which petsc4py does not
+# wrap: resolved in the PETSc library that petsc4py itself is linked to.
+_MAT_FACTOR_SCHUR_UNFACTORED = 0
+_capi: ctypes.CDLL | None = None
+
+
+def _petsc() -> ctypes.CDLL:
+    global _capi
+    if _capi is None:
+        lib = ctypes.CDLL(PETSc.__file__)  # dlsym searches its dependencies: libpetsc
+        vp, ip = ctypes.c_void_p, ctypes.c_int
+        lib.MatFactorSetSchurIS.argtypes = [vp, vp]
+        lib.MatFactorGetSchurComplement.argtypes = [vp, ctypes.POINTER(vp), ctypes.POINTER(ip)]
+        lib.MatFactorRestoreSchurComplement.argtypes = [vp, ctypes.POINTER(vp), ip]
+        lib.MatFactorFactorizeSchurComplement.argtypes = [vp]
+        lib.MatDenseGetArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
+        lib.MatDenseRestoreArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
+        lib.MatGetSize.argtypes = [vp, ctypes.POINTER(ip), ctypes.POINTER(ip)]
+        _capi = lib
+    return _capi
+
+
+def _call(name: str, *args) -> None:
+    code = getattr(_petsc(), name)(*args)
+    if code != 0:
+        raise RuntimeError(f"PETSc {name} failed with error code {code}.")
+
+
+def _full_symmetric(block: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """The symmetric matrix whose one triangle (or both) MUMPS stored in ``block``.
+
+    For a symmetric factorisation MUMPS returns the lower triangle by columns or by
+    rows depending on the run (serial: by columns; parallel, centralised: by rows),
+    leaving the other triangle zero; mirror whichever triangle holds the values.
+    """
+    lower, upper = np.tril(block, -1), np.triu(block, 1)
+    if not upper.any():
+        return np.tril(block) + lower.T
+    if not lower.any():
+        return np.triu(block) + upper.T
+    return 0.5 * (block + block.T)
+
+
+class _SchurBlock:
+    """The factored matrix's dense Schur block (MUMPS's storage), overwritten in place."""
+
+    def __init__(self, factor: PETSc.Mat):
+        self.factor = factor
+
+    def __enter__(self) -> npt.NDArray[np.float64]:
+        self._mat = ctypes.c_void_p()
+        status = ctypes.c_int()
+        _call("MatFactorGetSchurComplement", self.factor.handle, self._mat, status)
+        rows, cols = ctypes.c_int(), ctypes.c_int()
+        _call("MatGetSize", self._mat, rows, cols)
+        self._array = ctypes.POINTER(ctypes.c_double)()
+        _call("MatDenseGetArray", self._mat, self._array)
+        # column-major storage; S is symmetric, the caller writes whole matrices
+        return np.ctypeslib.as_array(self._array, shape=(cols.value, rows.value))
+
+    def __exit__(self, *exc) -> None:
+        _call("MatDenseRestoreArray", self._mat, self._array)
+        _call(
+            "MatFactorRestoreSchurComplement",
+            self.factor.handle,
+            self._mat,
+            _MAT_FACTOR_SCHUR_UNFACTORED,
+        )
+
+
+# ---------------------------------------------------------------------------------
+def _mumps_factor(options: Mapping[str, Any]) -> bool:
+    merged = {**DEFAULT_FACTOR_OPTIONS, **dict(options)}
+    return (
+        merged.get("ksp_type") == "preonly"
+        and merged.get("pc_type") in ("cholesky", "lu")
+        and merged.get("pc_factor_mat_solver_type") == "mumps"
+    )
+
+
+def condensed_factor_applies(
+    problem: ContactProblem, options: Mapping[str, Any] | None, *, any_dimension: bool = False
+) -> bool:
+    """Whether :class:`CondensedOperator` applies: MUMPS factorisation, and 2D by default.
+
+    Args:
+        problem: The contact problem.
+        options: The step-1 solver's options (they must keep a MUMPS factorisation).
+        any_dimension: Accept 3D too (where S_C is dense on a surface: costly).
+    """
+    return (any_dimension or problem.gdim == 2) and _mumps_factor(options or {})
+
+
+@dataclass
+class ContactSupport:
+    """The dof set C of K = NᵀMN and the pencil's data on it, on rank 0.
+
+    Attributes:
+        size: c = |C| (on every rank).
+        dofs: Global indices of C, sorted (on rank 0; empty elsewhere).
+        weights: W = Nᵀ M^{½} restricted to C, shape (c, m) (rank 0; None elsewhere):
+            column j is node j's free normal ñ_j scaled by sqrt(M_jj).
+    """
+
+    size: int
+    dofs: npt.NDArray[np.int32]
+    weights: npt.NDArray[np.float64] | None
+
+    @classmethod
+    def build(cls, problem: ContactProblem) -> ContactSupport:
+        """Gather C and W on rank 0; collective."""
+        c = problem.contact
+        bs = problem.V.dofmap.index_map_bs
+        row0 = problem.A.getOwnershipRange()[0]
+        ntilde = np.zeros((c.nodes.size, bs))
+        ntilde[:, : problem.gdim] = c.free_normals
+        node_of, comp = np.nonzero(ntilde)
+        local = (
+            (row0 + c.nodes[node_of] * bs + comp).astype(np.int64),
+            node_of,
+            ntilde[node_of, comp] * np.sqrt(c.mass[node_of]),
+        )
+        offset = problem.comm.exscan(c.nodes.size, op=MPI.SUM) or 0
+        size = problem.comm.allreduce(local[0].size, op=MPI.SUM)
+        gathered = problem.comm.gather((local[0], local[1] + offset, local[2]), root=0)
+        if problem.comm.rank != 0:
+            return cls(size, np.zeros(0, dtype=PETSc.IntType), None)
+        dofs = np.concatenate([g[0] for g in gathered])
+        rows = np.concatenate([g[1] for g in gathered])
+        values = np.concatenate([g[2] for g in gathered])
+        unique, position = np.unique(dofs, return_inverse=True)
+        weights = np.zeros((unique.size, c.num_global))
+        weights[position, rows] = values
+        return cls(size, unique.astype(PETSc.IntType), weights)
+
+
+class CondensedOperator:
+    """A factorised once, with its dense Schur complement onto C; A + rK by dense updates.
+
+    The interface of :class:`~admm_dolfinx.operators.PenalisedOperator` (``set_penalty``,
+    ``solve``, ``penalty``, ``solves``, ``timings``, ``ksp``, ``destroy``).
+
+    Args:
+        problem: The contact problem.
+        prefix: Options prefix of the KSP.
+        petsc_options: KSP/PC options (a MUMPS factorisation; see
+            :func:`condensed_factor_applies`).
+
+    Attributes:
+        support: C and the pencil's weights (rank 0).
+        schur: S_C as a dense array on rank 0 (None elsewhere).
+        k_cc: K = NᵀMN restricted to C × C, dense, on rank 0 (None elsewhere).
+        can_solve: Whether :meth:`solve` is available (one process: PETSc solves with a
+            Schur complement serially only).
+    """
+
+    def __init__(
+        self,
+        problem: ContactProblem,
+        prefix: str,
+        petsc_options: Mapping[str, Any] | None = None,
+    ):
+        options = {**DEFAULT_FACTOR_OPTIONS, **dict(petsc_options or {})}
+        if not _mumps_factor(options):
+            raise ValueError(
+                "The condensed factorisation needs a MUMPS factorisation (ksp_type "
+                "preonly, pc_type cholesky or lu, pc_factor_mat_solver_type mumps); "
+                f"got {dict(petsc_options or {})}."
+            )
+        self.problem = problem
+        self.prefix = prefix
+        self.penalty = float("nan")
+        self.solves = 0
+        self.timings: dict[str, float] = {"operator": 0.0, "factorization": 0.0}
+        self.can_solve = problem.comm.size == 1
+        comm = problem.comm
+        t0 = time.perf_counter()
+        self.support = ContactSupport.build(problem)
+        index_set = PETSc.IS().createGeneral(self.support.dofs, comm=comm)
+        self.matrix = problem.A.duplicate(copy=True)
+        self.matrix.setOption(PETSc.Mat.Option.SPD, True)
+        self.ksp = PETSc.KSP().create(comm)
+        try:
+            with Timer("admm_dolfinx: factorisation (A condensed onto Γ_C)"):
+                self.ksp.setOperators(self.matrix)
+                self.ksp.setOptionsPrefix(prefix)
+                with prefixed_options(prefix, options):
+                    self.ksp.setFromOptions()
+                    pc = self.ksp.getPC()
+                    pc.setFactorSetUpSolverType()
+                    self.factor = pc.getFactorMatrix()
+                    _call("MatFactorSetSchurIS", self.factor.handle, index_set.handle)
+                    self.ksp.setUp()
+                self._check_factorisation()
+            # K_CC: the ADMM's K restricted to C (a sequential matrix on every rank)
+            k_sub = problem.K.createSubMatrices(index_set, index_set)[0]
+            self.schur = None
+            self.k_cc = None
+            if comm.rank == 0:
+                with _SchurBlock(self.factor) as block:
+                    self.schur = _full_symmetric(block.T)
+                self.k_cc = k_sub.convert("dense").getDenseArray().copy()
+            k_sub.destroy()
+            self._check_support()
+        finally:
+            index_set.destroy()
+        self.timings["factorization"] = time.perf_counter() - t0
+
+    def _check_factorisation(self) -> None:
+        reason = self.ksp.getPC().getFailedReason()
+        if reason != 0:
+            raise RuntimeError(
+                f"The factorisation of A condensed onto Γ_C failed (PETSc reason {reason}). "
+                "A_II, the stiffness with the contact normal dofs removed, must be "
+                "non-singular: the Dirichlet conditions and Γ_C together must hold the body."
+            )
+
+    def _check_support(self) -> None:
+        """K must vanish outside C × C, or the condensed solve would be wrong."""
+        total = self.problem.K.norm(PETSc.NormType.FROBENIUS)
+        inside = float(np.linalg.norm(self.k_cc)) if self.k_cc is not None else 0.0
+        inside = self.problem.comm.bcast(inside, root=0)
+        if abs(total - inside) > 1e-12 * max(total, 1e-300):  # pragma: no cover - invariant
+            raise RuntimeError("NᵀMN has entries outside the contact normal dofs.")
+
+    def set_penalty(self, r: float) -> None:
+        """Make the solver solve with A + rK: a dense Cholesky of S_C + r K_CC.
+
+        Args:
+            r: Penalty parameter (> 0; the caller validates user input).
+        """
+        if r == self.penalty:
+            return
+        if not self.can_solve:
+            raise RuntimeError(
+                "Solving with the condensed factorisation needs one process (PETSc "
+                "solves with a Schur complement serially only); under MPI use "
+                "PenalisedOperator."
+            )
+        with Timer("admm_dolfinx: factorisation (S_C + r K_CC)"):
+            t0 = time.perf_counter()
+            with _SchurBlock(self.factor) as block:
+                # the whole symmetric matrix: right whichever triangle MUMPS filled
+                block[:] = self.schur + r * self.k_cc
+            _call("MatFactorFactorizeSchurComplement", self.factor.handle)
+            self.timings["operator"] = time.perf_counter() - t0
+        self.penalty = float(r)
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        """Solve (A + rK) x = b: condensation, dense solve, expansion."""
+        if not self.penalty == self.penalty:  # NaN: no r yet
+            raise RuntimeError("set_penalty must be called before solve.")
+        self.ksp.solve(b, x)
+        self.solves += 1
+        check_solve(self.ksp, f"A + r NᵀMN at r = {self.penalty:.6g} (condensed)")
+
+    def destroy(self) -> None:
+        """Free the KSP and the matrix."""
+        if getattr(self, "ksp", None) is not None:
+            self.ksp.destroy()
+            self.ksp = None
+        if getattr(self, "matrix", None) is not None:
+            self.matrix.destroy()
+            self.matrix = None
+
+    def __del__(self):
+        try:
+            self.destroy()
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
