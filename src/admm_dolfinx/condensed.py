@@ -307,7 +307,10 @@ class CondensedOperator:
         check_solve(self.ksp, f"A + r NᵀMN at r = {self.penalty:.6g} (condensed)")
 
     def destroy(self) -> None:
-        """Free the KSP and the matrix."""
+        """Free the KSP (with the factors) and the matrix."""
+        if getattr(self, "factor", None) is not None:
+            self.factor.destroy()  # our reference: the KSP's release then frees MUMPS
+            self.factor = None
         if getattr(self, "ksp", None) is not None:
             self.ksp.destroy()
             self.ksp = None
