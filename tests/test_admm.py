@@ -135,3 +135,18 @@ def test_solver_package_options_reach_the_factorisation():
         assert factor.getMumpsIcntl(14) == 77
         solver.set_penalty(4000.0)  # a numeric refactorisation keeps them
         assert solver.operator.ksp.getPC().getFactorMatrix().getMumpsIcntl(14) == 77
+
+
+@pytest.mark.parametrize("penalty", [3000.0, "auto"])  # ordinary, and condensed on 1 rank
+def test_default_ordering_is_amf_in_2d_and_can_be_overridden(penalty):
+    """2D: MUMPS's minimum-fill ordering (benchmarks/orderings.py); 3D: MUMPS's choice."""
+    from admm_dolfinx.scenes import example3
+
+    def ordering(problem, **options):
+        with ADMMSolver(problem, penalty=penalty, **options) as solver:
+            return solver.operator.ksp.getPC().getFactorMatrix().getMumpsIcntl(7)
+
+    problem = example1(h=1 / 8).problem()
+    assert ordering(problem) == 2
+    assert ordering(problem, petsc_options={"mat_mumps_icntl_7": 5}) == 5
+    assert ordering(example3(level=0).problem()) == 7

@@ -15,11 +15,13 @@ complement S_C + r K_CC, so
 * the r* estimate reads the whole contact pencil off S_C densely (exact, see
   :func:`admm_dolfinx.pencil_extremes.extremes_from_schur`).
 
-Keeping C to the end constrains MUMPS's ordering, which makes this factorisation
-dearer than that of A + rK: measured 1.1-1.5× in 2D (``benchmarks/penalty_cost.py``),
-where C is a curve of O(n^½) dofs, and 1.4× in 3D, where C is a surface of O(n^⅔)
-dofs and the dense front of C dominates. :func:`admm_dolfinx.penalty.estimate_penalty`
-therefore uses it in 2D only.
+Keeping C to the end constrains MUMPS's ordering (it runs AMD where A + rK gets AMF
+in 2D), which makes this factorisation dearer than that of A + rK: measured 1.2×
+(Example 1, h = 1/64) to 1.6× (h = 1/256) in 2D, where C is a curve of O(n^½) dofs,
+with substitutions up to 20 % dearer; and 1.4× in 3D (Example 3 level 3, 158k dofs),
+where C is a surface of O(n^⅔) dofs and its dense front dominates: there the iterative
+r* costs less. :func:`admm_dolfinx.penalty.estimate_penalty` therefore uses it in 2D
+only (``benchmarks/penalty_cost.py`` measures what it adds to a solve).
 
 PETSc computes the Schur complement in parallel (all of C on rank 0), but solves with
 it on one process only; under MPI the class serves the r* estimate and the ADMM
@@ -40,11 +42,7 @@ from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx.petsc import (
-    DEFAULT_FACTOR_OPTIONS,
-    check_solve,
-    prefixed_options,
-)
+from admm_dolfinx.petsc import check_solve, factor_options, prefixed_options
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["CondensedOperator", "ContactSupport", "condensed_factor_applies"]
@@ -122,7 +120,7 @@ class _SchurBlock:
 
 # ---------------------------------------------------------------------------------
 def _mumps_factor(options: Mapping[str, Any]) -> bool:
-    merged = {**DEFAULT_FACTOR_OPTIONS, **dict(options)}
+    merged = factor_options(options)
     return (
         merged.get("ksp_type") == "preonly"
         and merged.get("pc_type") in ("cholesky", "lu")
@@ -212,7 +210,7 @@ class CondensedOperator:
         prefix: str,
         petsc_options: Mapping[str, Any] | None = None,
     ):
-        options = {**DEFAULT_FACTOR_OPTIONS, **dict(petsc_options or {})}
+        options = factor_options(petsc_options, problem.gdim)
         if not _mumps_factor(options):
             raise ValueError(
                 "The condensed factorisation needs a MUMPS factorisation (ksp_type "

@@ -80,7 +80,9 @@ class PenalisedOperator:
     def _ensure_ksp(self) -> None:
         """Create the KSP (factorising), or tell it that the matrix values changed."""
         if self.ksp is None:
-            self.ksp = create_factor_solver(self.matrix, self.prefix, self._options)
+            self.ksp = create_factor_solver(
+                self.matrix, self.prefix, self._options, self.problem.gdim
+            )
         else:
             self.ksp.setOperators(self.matrix)
 
