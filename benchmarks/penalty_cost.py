@@ -18,7 +18,7 @@ markdown table and written to ``out_benchmarks/penalty_cost.csv``. Each time is 
 best of ``--repeat`` interleaved rounds (one call of each per round), and of more
 rounds while they take under 10 s in all (the machines are noisy). Run:
 
-    python benchmarks/penalty_cost.py            # Example 1 h=1/64, 1/128; Example 3 level 3
+    python benchmarks/penalty_cost.py            # Example 1 h=1/64 … 1/256; Example 3 level 3
     python benchmarks/penalty_cost.py --quick    # small sizes, for a smoke test
 """
 
@@ -119,6 +119,7 @@ def main():
         else [
             ("example1 h=1/64", lambda: example1(h=1 / 64)),
             ("example1 h=1/128", lambda: example1(h=1 / 128)),
+            ("example1 h=1/256", lambda: example1(h=1 / 256)),
             ("example3 level 3", lambda: example3(level=3)),
         ]
     )
