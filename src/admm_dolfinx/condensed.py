@@ -51,6 +51,7 @@ __all__ = ["CondensedOperator", "ContactSupport", "condensed_factor_applies"]
 # PETSc's Schur-complement interface of factored matrices, which petsc4py does not
 # wrap: resolved in the PETSc library that petsc4py itself is linked to.
 _MAT_FACTOR_SCHUR_UNFACTORED = 0
+_PETSC_INT = ctypes.c_int64 if np.dtype(PETSc.IntType).itemsize == 8 else ctypes.c_int32
 _capi: ctypes.CDLL | None = None
 
 
@@ -65,7 +66,7 @@ def _petsc() -> ctypes.CDLL:
         lib.MatFactorFactorizeSchurComplement.argtypes = [vp]
         lib.MatDenseGetArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
         lib.MatDenseRestoreArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
-        lib.MatGetSize.argtypes = [vp, ctypes.POINTER(ip), ctypes.POINTER(ip)]
+        lib.MatGetSize.argtypes = [vp, ctypes.POINTER(_PETSC_INT), ctypes.POINTER(_PETSC_INT)]
         _capi = lib
     return _capi
 
@@ -101,7 +102,7 @@ class _SchurBlock:
         self._mat = ctypes.c_void_p()
         status = ctypes.c_int()
         _call("MatFactorGetSchurComplement", self.factor.handle, self._mat, status)
-        rows, cols = ctypes.c_int(), ctypes.c_int()
+        rows, cols = _PETSC_INT(), _PETSC_INT()
         _call("MatGetSize", self._mat, rows, cols)
         self._array = ctypes.POINTER(ctypes.c_double)()
         _call("MatDenseGetArray", self._mat, self._array)
