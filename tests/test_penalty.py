@@ -233,3 +233,15 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
             vec.destroy()
         pc.destroy()
         space.destroy()
+
+
+def test_dense_estimate_matches_serial_where_mumps_leaves_scratch_values():
+    """h = 1/128 (c = 256): distributed, MUMPS fills one triangle of S_C and leaves
+    scratch values in the other, which must not be read. Serial against all ranks."""
+    problem = example1(h=1 / 128).problem()
+    serial_problem = example1(MPI.COMM_SELF, h=1 / 128).problem()
+    dense, dense_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
+    assert dense.details["method"] == "dense"
+    assert dense.r == pytest.approx(dense_serial.r, rel=1e-10)
+    assert dense.lambda_max == pytest.approx(dense_serial.lambda_max, rel=1e-10)
+    serial_problem.destroy()
