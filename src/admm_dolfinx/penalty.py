@@ -16,8 +16,8 @@ between the methods and assembles the estimate.
 In 2D with a MUMPS factorisation (``method="auto"``) r* is exact at any tolerance:
 one factorisation of A condensed onto the contact dofs
 (:class:`~admm_dolfinx.condensed.CondensedOperator`) gives the dense Schur complement
-S_C, from which the whole pencil follows densely
-(:func:`~admm_dolfinx.pencil_extremes.extremes_from_schur`); the ADMM then solves with
+S_C, from which the whole pencil follows densely, all m eigenvalues from SLEPc's
+LAPACK solver (:func:`~admm_dolfinx.pencil_extremes.extremes_from_schur`); the ADMM then solves with
 the same factorisation, so r* costs only the dense eigenvalue problem beyond it.
 Otherwise (3D, where S_C is too large to be dense, or another step-1 solver) the
 two extremes are computed iteratively:
@@ -93,11 +93,15 @@ class PenaltyEstimate:
         r: The penalty r* = 1/sqrt(λ_min λ_max).
         lambda_min: Smallest non-zero eigenvalue of A⁻¹NᵀMN.
         lambda_max: Largest finite eigenvalue of A⁻¹NᵀMN.
-        solves: Linear solves (operator applications) used by both eigenvalue solves.
-        time: Wall-clock seconds, factorisations included.
-        details: Breakdown: solves and seconds per extreme (``solves_min``,
-            ``time_min``, ``solves_max``, ``time_max``; ``time_multigrid_setup`` when
-            λ_max came from multigrid), the auxiliary r_a, rigid modes deflated.
+        solves: Linear solves (operator applications) used by both eigenvalue solves
+            (0 for the dense method, which needs none beyond its factorisation).
+        time: Wall-clock seconds, factorisations included (none when the caller's
+            condensed factorisation was used).
+        details: ``method`` (``"dense"`` or ``"iterative"``), ``rigid_modes``; dense:
+            ``c`` = |C|, ``time_factorization`` (0 if shared), ``time_dense``;
+            iterative: solves and seconds per extreme (``solves_min``, ``time_min``,
+            ``solves_max``, ``time_max``; ``time_multigrid_setup`` when λ_max came
+            from multigrid), the auxiliary r_a.
     """
 
     r: float
@@ -243,7 +247,10 @@ def _dense_extremes(problem, condensed, prefix, petsc_options):
             try:
                 with Timer("admm_dolfinx: r* dense pencil"):
                     outcome = extremes_from_schur(
-                        condensed.schur, condensed.k_cc, condensed.support.weights
+                        condensed.schur,
+                        condensed.k_cc,
+                        condensed.support.weights,
+                        prefix + "dense_",
                     )
             except RuntimeError as error:
                 outcome = str(error)
