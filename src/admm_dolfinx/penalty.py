@@ -5,25 +5,26 @@ non-zero eigenvalues of A⁻¹NᵀMN, i.e. of the m × m pencil on the contact d
 
     M w = λ S w,     S = Schur complement of A onto the contact normal dofs,
 
-so the best fixed r balances the two extremes: r* = 1/sqrt(λ_min λ_max).  Each
-extreme is computed as the *largest* eigenvalue of a symmetric operator (the large
-end converges in tens of applications; asking for the small end of the wrong
+so the best fixed r balances the two extremes: r* = 1/sqrt(λ_min λ_max). This module
+chooses between two methods and assembles the estimate.
+
+**Dense** (the default in 2D with a MUMPS factorisation): one factorisation of A
+condensed onto the contact dofs (:class:`~admm_dolfinx.condensed.CondensedOperator`)
+gives the dense Schur complement S_C, from which the whole pencil follows: all m
+eigenvalues from SLEPc's LAPACK solver
+(:func:`~admm_dolfinx.pencil_extremes.extremes_from_schur`). r* is exact, and the
+ADMM then solves with the same factorisation, so r* costs only the dense eigenvalue
+problem beyond it.
+
+**Iterative** (3D, where S_C is too large to be dense, or another step-1 solver):
+each extreme is computed as the *largest* eigenvalue of a symmetric operator (the
+large end converges in tens of applications; asking for the small end of the wrong
 operator takes hundreds): an m × m one with SLEPc's Krylov–Schur, or, for λ_max at
 the default tolerance, the full-space pencil with LOBPCG. How, and at which
-tolerance, is described in :mod:`admm_dolfinx.pencil_extremes`; this module chooses
-between the methods and assembles the estimate.
+tolerance, is described in :mod:`admm_dolfinx.pencil_extremes`.
 
-In 2D with a MUMPS factorisation (``method="auto"``) r* is exact at any tolerance:
-one factorisation of A condensed onto the contact dofs
-(:class:`~admm_dolfinx.condensed.CondensedOperator`) gives the dense Schur complement
-S_C, from which the whole pencil follows densely, all m eigenvalues from SLEPc's
-LAPACK solver (:func:`~admm_dolfinx.pencil_extremes.extremes_from_schur`); the ADMM then solves with
-the same factorisation, so r* costs only the dense eigenvalue problem beyond it.
-Otherwise (3D, where S_C is too large to be dense, or another step-1 solver) the
-two extremes are computed iteratively:
-
-Factorisations of the whole body: none at the default tolerance (the ADMM then
-factorises A + r* NᵀMN once).  At tolerances ≤ 1e-6, Â and A + r_a NᵀMN, which have
+Factorisations of the whole body, iteratively: none at the default tolerance (the ADMM
+then factorises A + r* NᵀMN once).  At tolerances ≤ 1e-6, Â and A + r_a NᵀMN, which have
 A's sparsity pattern, are factorised in one
 :class:`~admm_dolfinx.operators.PenalisedOperator` - the one the ADMM then
 refactorises at r* - so the symbolic analysis (ordering) is computed once and each
@@ -34,9 +35,9 @@ Partition dependence: the dense 2D r* is the same on any number of processes to
 round-off (tested to 1e-10; under MPI the condensed factorisation serves only r*,
 because PETSc solves with a Schur complement serially only, and the ADMM factorises
 A + r*K). Iteratively, at tolerances ≤ 1e-6, r* is the same on any number of
-processes to round-off (tested to 1e-6 under ``mpiexec -n 2``).  At the default tolerance the
-multigrid aggregates depend on the partition, and r* with them, by about the
-error of θ (a few 1e-5 measured; tested ≤ 2e-4 under ``mpiexec -n 2``);
+processes to round-off (tested to 1e-6 under ``mpiexec -n 2``). At the default
+tolerance the multigrid aggregates depend on the partition, and r* with them, by about
+the error of θ (a few 1e-5 measured; tested ≤ 2e-4 under ``mpiexec -n 2``);
 the ADMM converges to the same solution.
 """
 
