@@ -128,16 +128,27 @@ def test_auto_penalty_shares_one_symbolic_factorisation(tol):
     assert result.timings["penalty"] == estimate.time
 
 
-def test_parallel_estimate_matches_serial():
-    problem = example1(h=1 / 16).problem()
-    serial_problem = example1(MPI.COMM_SELF, h=1 / 16).problem()
-    # 2D default: dense, from the condensed factorisation (computed on all ranks, the
-    # Schur complement on rank 0): the same r* to round-off
+@pytest.mark.parametrize("h", [1 / 16, 1 / 128])
+def test_parallel_dense_estimate_matches_serial(h):
+    """2D default: dense, from the condensed factorisation (computed on all ranks, S_C
+    on rank 0): the same r* to round-off. At h = 1/128 (c = 256), distributed, MUMPS
+    fills one triangle of S_C and leaves scratch values in the other, which must not
+    be read."""
+    problem = example1(h=h).problem()
+    serial_problem = example1(MPI.COMM_SELF, h=h).problem()
     dense, dense_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
     assert dense.details["method"] == "dense"
     assert dense.r == pytest.approx(dense_serial.r, rel=1e-10)
     assert dense.lambda_min == pytest.approx(dense_serial.lambda_min, rel=1e-10)
     assert dense.lambda_max == pytest.approx(dense_serial.lambda_max, rel=1e-10)
+    serial_problem.destroy()
+
+
+def test_parallel_estimate_matches_serial():
+    """The iterative method on all ranks against one rank."""
+    problem = example1(h=1 / 16).problem()
+    serial_problem = example1(MPI.COMM_SELF, h=1 / 16).problem()
+    dense = estimate_penalty(problem)
     est = estimate_penalty(problem, tol=TIGHT, method="iterative")
     serial = estimate_penalty(serial_problem, tol=TIGHT, method="iterative")
     assert est.r == pytest.approx(serial.r, rel=1e-6)
@@ -233,15 +244,3 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
             vec.destroy()
         pc.destroy()
         space.destroy()
-
-
-def test_dense_estimate_matches_serial_where_mumps_leaves_scratch_values():
-    """h = 1/128 (c = 256): distributed, MUMPS fills one triangle of S_C and leaves
-    scratch values in the other, which must not be read. Serial against all ranks."""
-    problem = example1(h=1 / 128).problem()
-    serial_problem = example1(MPI.COMM_SELF, h=1 / 128).problem()
-    dense, dense_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
-    assert dense.details["method"] == "dense"
-    assert dense.r == pytest.approx(dense_serial.r, rel=1e-10)
-    assert dense.lambda_max == pytest.approx(dense_serial.lambda_max, rel=1e-10)
-    serial_problem.destroy()

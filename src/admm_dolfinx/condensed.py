@@ -42,6 +42,7 @@ from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from admm_dolfinx.operators import FactorisedOperator
 from admm_dolfinx.petsc import check_solve, factor_options, prefixed_options
 from admm_dolfinx.problem import ContactProblem
 
@@ -183,7 +184,7 @@ class ContactSupport:
         return cls(size, unique.astype(PETSc.IntType), weights)
 
 
-class CondensedOperator:
+class CondensedOperator(FactorisedOperator):
     """A factorised once, with its dense Schur complement onto C; A + rK by dense updates.
 
     The interface of :class:`~admm_dolfinx.operators.PenalisedOperator` (``set_penalty``,
@@ -308,15 +309,4 @@ class CondensedOperator:
         if getattr(self, "factor", None) is not None:
             self.factor.destroy()  # our reference: the KSP's release then frees MUMPS
             self.factor = None
-        if getattr(self, "ksp", None) is not None:
-            self.ksp.destroy()
-            self.ksp = None
-        if getattr(self, "matrix", None) is not None:
-            self.matrix.destroy()
-            self.matrix = None
-
-    def __del__(self):
-        try:
-            self.destroy()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass
+        super().destroy()

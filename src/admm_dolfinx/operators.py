@@ -15,13 +15,21 @@ from typing import Any
 from dolfinx.common import Timer
 from petsc4py import PETSc
 
-from admm_dolfinx.petsc import check_solve, create_factor_solver
+from admm_dolfinx.petsc import PetscOwner, check_solve, create_factor_solver
 from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["PenalisedOperator"]
+__all__ = ["FactorisedOperator", "PenalisedOperator"]
 
 
-class PenalisedOperator:
+class FactorisedOperator(PetscOwner):
+    """Owns a matrix and the KSP that factorises it; frees both (the step-1 operators)."""
+
+    _petsc_objects = ("ksp", "matrix")
+    matrix: PETSc.Mat | None = None
+    ksp: PETSc.KSP | None = None
+
+
+class PenalisedOperator(FactorisedOperator):
     """A + r NᵀMN with a reusable factorisation.
 
     Args:
@@ -113,18 +121,3 @@ class PenalisedOperator:
         self.ksp.solve(b, x)
         self.solves += 1
         check_solve(self.ksp, self._label)
-
-    def destroy(self) -> None:
-        """Free the KSP and the matrix."""
-        if self.ksp is not None:
-            self.ksp.destroy()
-            self.ksp = None
-        if self.matrix is not None:
-            self.matrix.destroy()
-            self.matrix = None
-
-    def __del__(self):
-        try:
-            self.destroy()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass

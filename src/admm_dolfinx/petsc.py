@@ -17,6 +17,7 @@ from petsc4py import PETSc
 
 __all__ = [
     "DEFAULT_FACTOR_OPTIONS",
+    "PetscOwner",
     "apply_options",
     "create_factor_solver",
     "factor_options",
@@ -41,6 +42,26 @@ DEFAULT_FACTOR_OPTIONS: dict[str, Any] = {
 ORDERING_2D: dict[str, Any] = {"mat_mumps_icntl_7": 2}
 
 _counter = itertools.count()
+
+
+class PetscOwner:
+    """Frees the PETSc objects named in ``_petsc_objects`` on :meth:`destroy` or GC."""
+
+    _petsc_objects: tuple[str, ...] = ()
+
+    def destroy(self) -> None:
+        """Free the PETSc objects this object owns."""
+        for name in self._petsc_objects:
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.destroy()
+                setattr(self, name, None)
+
+    def __del__(self):
+        try:
+            self.destroy()
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
 
 
 def factor_options(options: Mapping[str, Any] | None, gdim: int | None = None) -> dict[str, Any]:

@@ -38,6 +38,7 @@ from admm_dolfinx.contact import (
     contact_measure,
 )
 from admm_dolfinx.obstacles import Obstacle
+from admm_dolfinx.petsc import PetscOwner
 
 __all__ = ["ContactProblem"]
 
@@ -127,7 +128,7 @@ def _check_forms(a: ufl.Form, L: ufl.Form) -> fem.FunctionSpace:
     return V
 
 
-class ContactProblem:
+class ContactProblem(PetscOwner):
     """Frictionless contact of a linear elastic body with a rigid obstacle.
 
     Args:
@@ -152,6 +153,9 @@ class ContactProblem:
         K: Normal mass NᵀMN with Dirichlet rows/columns eliminated (zero diagonal).
         contact: The :class:`~admm_dolfinx.contact.ContactSet`.
     """
+
+    #: What :meth:`destroy` frees (matrices and vectors of the problem).
+    _petsc_objects = ("A", "K", "_load", "_lift_k")
 
     def __init__(
         self,
@@ -412,20 +416,6 @@ class ContactProblem:
     def load_vector(self) -> PETSc.Vec:
         """The lifted load f (Dirichlet rows hold u_D); owned by the problem, do not modify."""
         return self._load
-
-    def destroy(self) -> None:
-        """Free the PETSc objects (matrices and vectors) of the problem."""
-        for name in ("A", "K", "_load", "_lift_k"):
-            obj = getattr(self, name, None)
-            if obj is not None:
-                obj.destroy()
-                setattr(self, name, None)
-
-    def __del__(self):
-        try:
-            self.destroy()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass
 
     def __repr__(self) -> str:
         return (
