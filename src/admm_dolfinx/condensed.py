@@ -30,7 +30,6 @@ factorises A + r*K separately (:attr:`CondensedOperator.can_solve`).
 
 from __future__ import annotations
 
-import ctypes
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -44,78 +43,10 @@ from petsc4py import PETSc
 
 from admm_dolfinx.operators import FactorisedOperator
 from admm_dolfinx.petsc import check_solve, factor_options, prefixed_options
+from admm_dolfinx.petsc_schur import SchurBlock, factorize_schur, full_symmetric, set_schur_indices
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["CondensedOperator", "ContactSupport", "condensed_factor_applies"]
-
-# ---------------------------------------------------------------------------------
-# PETSc's Schur-complement interface of factored matrices, which petsc4py does not
-# wrap: resolved in the PETSc library that petsc4py itself is linked to.
-_MAT_FACTOR_SCHUR_UNFACTORED = 0
-_PETSC_INT = ctypes.c_int64 if np.dtype(PETSc.IntType).itemsize == 8 else ctypes.c_int32
-_capi: ctypes.CDLL | None = None
-
-
-def _petsc() -> ctypes.CDLL:
-    global _capi
-    if _capi is None:
-        lib = ctypes.CDLL(PETSc.__file__)  # dlsym searches its dependencies: libpetsc
-        vp, ip = ctypes.c_void_p, ctypes.c_int
-        lib.MatFactorSetSchurIS.argtypes = [vp, vp]
-        lib.MatFactorGetSchurComplement.argtypes = [vp, ctypes.POINTER(vp), ctypes.POINTER(ip)]
-        lib.MatFactorRestoreSchurComplement.argtypes = [vp, ctypes.POINTER(vp), ip]
-        lib.MatFactorFactorizeSchurComplement.argtypes = [vp]
-        lib.MatDenseGetArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
-        lib.MatDenseRestoreArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
-        lib.MatGetSize.argtypes = [vp, ctypes.POINTER(_PETSC_INT), ctypes.POINTER(_PETSC_INT)]
-        _capi = lib
-    return _capi
-
-
-def _call(name: str, *args) -> None:
-    code = getattr(_petsc(), name)(*args)
-    if code != 0:
-        raise RuntimeError(f"PETSc {name} failed with error code {code}.")
-
-
-def _full_symmetric(block: npt.NDArray[np.float64], serial: bool) -> npt.NDArray[np.float64]:
-    """The symmetric S_C from the triangle of ``block`` that MUMPS filled.
-
-    ``block`` is the Schur buffer read column by column. For a symmetric factorisation
-    MUMPS fills one triangle only: the lower one on one process, the lower one by rows
-    (the upper one read by columns) when the factorisation is distributed. The other
-    triangle is not zeroed and may hold scratch values (measured: a quarter of it at
-    m = 512 on 2 processes), so it is never read.
-    """
-    half = np.tril(block) if serial else np.triu(block)
-    return half + np.tril(half, -1).T if serial else half + np.triu(half, 1).T
-
-
-class _SchurBlock:
-    """The factored matrix's dense Schur block (MUMPS's storage), overwritten in place."""
-
-    def __init__(self, factor: PETSc.Mat):
-        self.factor = factor
-
-    def __enter__(self) -> npt.NDArray[np.float64]:
-        self._mat = ctypes.c_void_p()
-        status = ctypes.c_int()
-        _call("MatFactorGetSchurComplement", self.factor.handle, self._mat, status)
-        rows, cols = _PETSC_INT(), _PETSC_INT()
-        _call("MatGetSize", self._mat, rows, cols)
-        self._array = ctypes.POINTER(ctypes.c_double)()
-        _call("MatDenseGetArray", self._mat, self._array)
-        # column-major storage; S is symmetric, the caller writes whole matrices
-        return np.ctypeslib.as_array(self._array, shape=(cols.value, rows.value))
-
-    def __exit__(self, *exc) -> None:
-        _call("MatDenseRestoreArray", self._mat, self._array)
-        _call(
-            "MatFactorRestoreSchurComplement",
-            self.factor.handle,
-            self._mat,
-            _MAT_FACTOR_SCHUR_UNFACTORED,
-        )
 
 
 # ---------------------------------------------------------------------------------
@@ -239,7 +170,7 @@ class CondensedOperator(FactorisedOperator):
                     pc = self.ksp.getPC()
                     pc.setFactorSetUpSolverType()
                     self.factor = pc.getFactorMatrix()
-                    _call("MatFactorSetSchurIS", self.factor.handle, index_set.handle)
+                    set_schur_indices(self.factor, index_set)
                     self.ksp.setUp()
                 self._check_factorisation()
             # K_CC: the ADMM's K restricted to C (a sequential matrix on every rank)
@@ -247,8 +178,8 @@ class CondensedOperator(FactorisedOperator):
             self.schur = None
             self.k_cc = None
             if comm.rank == 0:
-                with _SchurBlock(self.factor) as block:
-                    self.schur = _full_symmetric(block.T, serial=comm.size == 1)
+                with SchurBlock(self.factor) as block:
+                    self.schur = full_symmetric(block.T, serial=comm.size == 1)
                 self.k_cc = k_sub.convert("dense").getDenseArray().copy()
             k_sub.destroy()
             self._check_support()
@@ -289,10 +220,10 @@ class CondensedOperator(FactorisedOperator):
             )
         with Timer("admm_dolfinx: factorisation (S_C + r K_CC)"):
             t0 = time.perf_counter()
-            with _SchurBlock(self.factor) as block:
+            with SchurBlock(self.factor) as block:
                 # the whole symmetric matrix: right whichever triangle MUMPS filled
                 block[:] = self.schur + r * self.k_cc
-            _call("MatFactorFactorizeSchurComplement", self.factor.handle)
+            factorize_schur(self.factor)
             self.timings["operator"] = time.perf_counter() - t0
         self.penalty = float(r)
 
