@@ -134,3 +134,17 @@ def test_condensed_needs_mumps_and_one_process():
         with pytest.raises(RuntimeError, match="needs one process"):
             condensed.set_penalty(100.0)
         condensed.destroy()
+
+
+def test_large_contact_sets_fall_back_to_the_iterative_method(monkeypatch):
+    """Above MAX_CONDENSED_CONTACT_NODES the automatic choices avoid the dense S_C."""
+    import admm_dolfinx.condensed as condensed
+
+    problem = example1(h=1 / 16).problem()  # m = 32
+    monkeypatch.setattr(condensed, "MAX_CONDENSED_CONTACT_NODES", 31)
+    with ADMMSolver(problem) as solver:
+        assert solver.penalty_estimate.details["method"] == "iterative"
+        assert type(solver.operator).__name__ == "PenalisedOperator"
+    monkeypatch.setattr(condensed, "MAX_CONDENSED_CONTACT_NODES", 32)
+    with ADMMSolver(problem) as solver:
+        assert solver.penalty_estimate.details["method"] == "dense"

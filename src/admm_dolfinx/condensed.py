@@ -46,7 +46,12 @@ from admm_dolfinx.petsc import check_solve, factor_options, prefixed_options
 from admm_dolfinx.petsc_schur import SchurBlock, factorize_schur, full_symmetric, set_schur_indices
 from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["CondensedOperator", "ContactSupport", "condensed_factor_applies"]
+__all__ = [
+    "MAX_CONDENSED_CONTACT_NODES",
+    "CondensedOperator",
+    "ContactSupport",
+    "condensed_factor_applies",
+]
 
 
 # ---------------------------------------------------------------------------------
@@ -59,17 +64,30 @@ def _mumps_factor(options: Mapping[str, Any]) -> bool:
     )
 
 
+#: Above this many contact nodes the automatic choices leave the condensed
+#: factorisation aside: S_C (up to 2m × 2m in 2D) would take over 250 MB and its dense
+#: front would dominate the factorisation. Example 1 at h = 1/256 has m = 512.
+MAX_CONDENSED_CONTACT_NODES = 4000
+
+
 def condensed_factor_applies(
     problem: ContactProblem, options: Mapping[str, Any] | None, *, any_dimension: bool = False
 ) -> bool:
-    """Whether :class:`CondensedOperator` applies: MUMPS factorisation, and 2D by default.
+    """Whether :class:`CondensedOperator` applies (MUMPS; by default 2D, m not too large).
+
+    By default: 2D with at most :data:`MAX_CONDENSED_CONTACT_NODES` contact nodes.
 
     Args:
         problem: The contact problem.
         options: The step-1 solver's options (they must keep a MUMPS factorisation).
-        any_dimension: Accept 3D too (where S_C is dense on a surface: costly).
+        any_dimension: Accept any dimension and size (an explicit request: in 3D S_C is
+            dense on a surface, which is costly).
     """
-    return (any_dimension or problem.gdim == 2) and _mumps_factor(options or {})
+    if not _mumps_factor(options or {}):
+        return False
+    if any_dimension:
+        return True
+    return problem.gdim == 2 and problem.contact.num_global <= MAX_CONDENSED_CONTACT_NODES
 
 
 @dataclass
