@@ -142,11 +142,15 @@ def test_default_ordering_is_amf_in_2d_and_can_be_overridden(penalty):
     """2D: MUMPS's minimum-fill ordering (benchmarks/orderings.py); 3D: MUMPS's choice."""
     from admm_dolfinx.scenes import example3
 
-    def ordering(problem, **options):
+    def ordering(problem, used=False, **options):
         with ADMMSolver(problem, penalty=penalty, **options) as solver:
-            return solver.operator.ksp.getPC().getFactorMatrix().getMumpsIcntl(7)
+            factor = solver.operator.ksp.getPC().getFactorMatrix()
+            return factor.getMumpsInfog(7) if used else factor.getMumpsIcntl(7)
 
     problem = example1(h=1 / 8).problem()
     assert ordering(problem) == 2
+    # what MUMPS ran: AMF (2); with a Schur complement (condensed, one process) AMD (0)
+    condensed = penalty == "auto" and problem.comm.size == 1
+    assert ordering(problem, used=True) == (0 if condensed else 2)
     assert ordering(problem, petsc_options={"mat_mumps_icntl_7": 5}) == 5
     assert ordering(example3(level=0).problem()) == 7

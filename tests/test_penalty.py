@@ -244,3 +244,19 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
             vec.destroy()
         pc.destroy()
         space.destroy()
+
+
+def test_iterative_method_with_a_condensed_operator_uses_its_own():
+    """method="iterative" with the solver's condensed operator: iterative, not dense."""
+    from admm_dolfinx.condensed import CondensedOperator
+
+    problem = example1(h=1 / 16).problem()
+    condensed = CondensedOperator(problem, "test_shared_")
+    try:
+        shared = estimate_penalty(problem, operator=condensed)
+        iterative = estimate_penalty(problem, operator=condensed, method="iterative")
+    finally:
+        condensed.destroy()
+    assert shared.details["method"] == "dense"
+    assert iterative.details["method"] == "iterative"
+    assert iterative.r == pytest.approx(shared.r, rel=0.05)

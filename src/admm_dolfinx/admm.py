@@ -311,10 +311,10 @@ class ADMMSolver:
         return self.operator.penalty
 
     def set_penalty(self, r: float) -> None:
-        """Set r, form A_r = A + r NᵀMN and factorise it (once per r).
+        """Set r and make step 1 solve with A_r = A + r NᵀMN (factorised once per r).
 
-        A new r keeps the sparsity pattern, so the symbolic factorisation is reused and
-        only the numeric factorisation is redone.
+        An ordinary operator redoes only the numeric factorisation (a new r keeps the
+        sparsity pattern); a condensed one only a dense factorisation of S_C + r K_CC.
 
         Args:
             r: Penalty parameter, > 0.
@@ -323,7 +323,7 @@ class ADMMSolver:
 
     @property
     def ksp(self) -> PETSc.KSP:
-        """The step-1 KSP (factorised A + rNᵀMN)."""
+        """The step-1 KSP (factorised A + rNᵀMN, or A condensed onto Γ_C)."""
         return self.operator.ksp
 
     @property

@@ -16,12 +16,12 @@ complement S_C + r K_CC, so
   :func:`admm_dolfinx.pencil_extremes.extremes_from_schur`).
 
 Keeping C to the end constrains MUMPS's ordering (it runs AMD where A + rK gets AMF
-in 2D), which makes this factorisation dearer than that of A + rK: measured 1.2×
-(Example 1, h = 1/64) to 1.6× (h = 1/256) in 2D, where C is a curve of O(n^½) dofs,
-with substitutions up to 20 % dearer; and 1.4× in 3D (Example 3 level 3, 158k dofs),
-where C is a surface of O(n^⅔) dofs and its dense front dominates: there the iterative
-r* costs less. :func:`admm_dolfinx.penalty.estimate_penalty` therefore uses it in 2D
-only (``benchmarks/penalty_cost.py`` measures what it adds to a solve).
+in 2D), which makes this factorisation, and somewhat its substitutions, dearer than
+those of A + rK: 1.2× (Example 1, h = 1/64) to 1.6× (h = 1/256) in 2D, where C is a
+curve of O(n^½) dofs (``benchmarks/penalty_cost.py`` prints both factorisations and
+what the condensed path adds to a solve). In 3D C is a surface of O(n^⅔) dofs, whose
+dense front of c³/3 flops dominates the factorisation, so
+:func:`admm_dolfinx.penalty.estimate_penalty` and the solver use it in 2D only.
 
 PETSc computes the Schur complement in parallel (all of C on rank 0), but solves with
 it on one process only; under MPI the class serves the r* estimate and the ADMM

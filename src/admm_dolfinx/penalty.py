@@ -169,15 +169,17 @@ def estimate_penalty(
         raise ValueError(f"method must be one of {PENALTY_METHODS}, got {method!r}.")
     prefix = petsc_options_prefix or unique_prefix("penalty_")
     t_start = time.perf_counter()
-    if (
-        isinstance(operator, CondensedOperator)
-        or method == "dense"
-        or (method == "auto" and condensed_factor_applies(problem, petsc_options))
-    ):
-        condensed = operator if isinstance(operator, CondensedOperator) else None
+    shared_condensed = isinstance(operator, CondensedOperator)
+    if method == "auto":
+        dense = shared_condensed or condensed_factor_applies(problem, petsc_options)
+        method = "dense" if dense else "iterative"
+    if method == "dense":
+        condensed = operator if shared_condensed else None
         lambda_min, lambda_max, details = _dense_extremes(problem, condensed, prefix, petsc_options)
         details["tol"] = 0.0
         return _finish(lambda_min, lambda_max, details, t_start)
+    if shared_condensed:  # the iterative method factorises other matrices: a private one
+        operator = None
     space = ContactSpace(problem)
     own_operator = operator is None
     if operator is None:

@@ -106,9 +106,8 @@ def sample_penalty(
     converged = np.zeros(r_values.size, dtype=bool)
     t0 = time.perf_counter()
     # one condensed factorisation serves every r where it can (2D, one process)
-    condensed = None
-    if problem.comm.size == 1 and condensed_factor_applies(problem, petsc_options):
-        condensed = True
+    serial = problem.comm.size == 1
+    condensed = True if serial and condensed_factor_applies(problem, petsc_options) else None
     with ADMMSolver(
         problem,
         penalty=float(r_values[0]),
