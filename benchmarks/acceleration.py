@@ -9,7 +9,9 @@ For every mesh, in one run:
 3. each variant iterates until ‖u − u_ref‖/‖u_ref‖ ≤ 1e-6 and ≤ 1e-8 (read off a
    per-iteration callback, so every variant stops at the same error):
    ``paper r*`` (α = 1, no acceleration), ``paper r̄`` (the same at the sampled
-   optimum r̄), ``relaxed`` (α only), ``anderson`` (memory only), ``both``;
+   optimum r̄), ``relaxed`` (α only), ``anderson`` (memory only), ``both``, and
+   ``polished`` (both, with active-set polishing: the default in 2D; in 3D, where it is
+   not the default, it runs the solver's condensed factorisation and dense r* too);
 4. time = r* + factorisation + iterations (callback time excluded), and the ratio to
    a plain linear-elastic solve of the same matrix (factorisation + 1 solve). In 3D
    plain and contact factorise the same matrix A + r*NᵀMN (each variant at r* once,
@@ -19,13 +21,14 @@ For every mesh, in one run:
    A serves r* and the ADMM, so r* costs its dense eigenproblem only, and the contact
    factorisation is the fastest condensed one; the plain solve factorises A + r*NᵀMN.
 
-r̄ minimises the iterations to 1e-6 over 12 penalties log-spaced in [r*/10, 10 r*].
+The default is ``polished`` where the solver polishes by default (2D), ``both``
+elsewhere. r̄ minimises the iterations to 1e-6 over 12 penalties log-spaced in [r*/10, 10 r*].
 On the largest meshes, where that search costs too much, each of the 12 penalties
 runs only as many iterations as the default needs to 1e-8: the ``paper r̄`` cells then
 hold the best count if some penalty reaches the error within them, and "> N" if none
 does (so the default needs fewer iterations than the paper at any sampled r).
 
-    python benchmarks/acceleration.py --select          # choose the defaults (α, memory)
+    python benchmarks/acceleration.py --select          # choose the defaults (α, memory, polish)
     python benchmarks/acceleration.py                   # the README table
     python benchmarks/acceleration.py --quick           # small meshes only
     python benchmarks/acceleration.py --only h0=0.24    # the 257k-dof 3D mesh only
@@ -50,6 +53,7 @@ from mpi4py import MPI
 from tables import markdown_table, print_and_save
 
 import admm_dolfinx
+import admm_dolfinx.polish as polish_module
 from admm_dolfinx.admm import ADMMConvergenceError
 from admm_dolfinx.baselines import solve_snes_vi
 from admm_dolfinx.operators import PenalisedOperator
@@ -105,18 +109,33 @@ class ErrorTrace:
 
 
 def run_variant(problem, u_ref, r, options, cap=None, max_iter=3000, condensed=None):
+    """(error trace, seconds per iteration, factorisation seconds, r* seconds).
+
+    ``r="auto"`` lets the solver compute r* itself (the polished variant, which needs
+    the Schur complement that its own r* computation reads); r* seconds are then its
+    own, else 0. ``options`` may set ``rounds``: the polisher's correction rounds.
+    """
+    options = dict(options)
+    rounds = options.pop("rounds", None)
+    saved = polish_module.MAX_ROUNDS
+    if rounds is not None:
+        polish_module.MAX_ROUNDS = rounds
     trace = ErrorTrace(u_ref, cap)
-    with admm_dolfinx.ADMMSolver(
-        problem, penalty=r, rtol=1e-300, max_iter=max_iter, condensed=condensed, **options
-    ) as solver:
-        try:
-            result = solver.solve(callback=trace)
-        except ADMMConvergenceError as err:
-            result = err.result
-        t_fact = solver.operator.timings["factorization"]
+    try:
+        with admm_dolfinx.ADMMSolver(
+            problem, penalty=r, rtol=1e-300, max_iter=max_iter, condensed=condensed, **options
+        ) as solver:
+            try:
+                result = solver.solve(callback=trace)
+            except ADMMConvergenceError as err:
+                result = err.result
+            t_fact = solver.operator.timings["factorization"]
+            t_penalty = result.timings["penalty"]
+    finally:
+        polish_module.MAX_ROUNDS = saved
     per_iteration = max(result.timings["iterations"] - trace.time, 0.0) / max(result.iterations, 1)
     trace.work.destroy()
-    return trace, per_iteration, t_fact
+    return trace, per_iteration, t_fact, t_penalty, result.penalty
 
 
 def penalty_samples(r_star):
@@ -127,7 +146,7 @@ def penalty_samples(r_star):
 def sampled_r_bar(problem, u_ref, r_star, options):
     best = (None, None)
     for r in penalty_samples(r_star):
-        trace, _, _ = run_variant(problem, u_ref, r, options, cap=best[1], max_iter=800)
+        trace, *_ = run_variant(problem, u_ref, r, options, cap=best[1], max_iter=800)
         its = trace.iterations_to(TARGETS[0])
         if its is not None and (best[1] is None or its < best[1]):
             best = (r, its)
@@ -143,7 +162,7 @@ def r_bar_bound(problem, u_ref, r_star, options, cap):
     """
     best = [None] * len(TARGETS)
     for r in penalty_samples(r_star):
-        trace, _, _ = run_variant(problem, u_ref, r, options, cap=cap, max_iter=cap)
+        trace, *_ = run_variant(problem, u_ref, r, options, cap=cap, max_iter=cap)
         for i, target in enumerate(TARGETS):
             its = trace.iterations_to(target)
             if its is not None and (best[i] is None or its < best[i]):
@@ -167,11 +186,14 @@ def plain_solve_times(problem, r):
     return t_fact, t_solve
 
 
+PAPER = {"alpha": 1.0, "anderson": 0, "polish": False}
 VARIANTS = {
-    "paper r*": {"mode_options": {"alpha": 1.0, "anderson": 0}},
-    "relaxed": {"mode_options": {"alpha": 1.6, "anderson": 0}},
-    "anderson": {"mode_options": {"alpha": 1.0, "anderson": 5}},
-    "both": {"mode_options": {"alpha": 1.6, "anderson": 5}},
+    "paper r*": {"mode_options": PAPER},
+    "relaxed": {"mode_options": {"alpha": 1.6, "anderson": 0, "polish": False}},
+    "anderson": {"mode_options": {"alpha": 1.0, "anderson": 5, "polish": False}},
+    "both": {"mode_options": {"alpha": 1.6, "anderson": 5, "polish": False}},
+    # the solver's own r* and (condensed) factorisation, whose S_C the polisher reads
+    "polished": {"mode_options": {"alpha": 1.6, "anderson": 5, "polish": True}, "r": "auto"},
 }
 
 
@@ -191,53 +213,61 @@ def bench_mesh(name, scene, axis_aligned, with_r_bar, variants):
     plain_fact, t_solve = plain_solve_times(problem, estimate.r)
     runs = dict(variants)
     if with_r_bar:
-        r_bar = sampled_r_bar(problem, u_ref, estimate.r, {"alpha": 1.0, "anderson": 0})
+        r_bar = sampled_r_bar(problem, u_ref, estimate.r, PAPER)
         runs = {
             "paper r*": variants["paper r*"],
-            "paper r̄": {"mode_options": {"alpha": 1.0, "anderson": 0}, "r": r_bar},
+            "paper r̄": {"mode_options": PAPER, "r": r_bar},
             **{k: v for k, v in variants.items() if k != "paper r*"},
         }
     traces = {}
     # every factorisation of the contact solves' matrix at r*; in 3D the plain solve's
-    # is the same matrix, A + r*NᵀMN
+    # is the same matrix, A + r*NᵀMN. The polished variant factorises A condensed onto
+    # Γ_C, which in 2D is what the other variants factorise too, in 3D a matrix of its own.
     factorisations = [] if condensed else [plain_fact]
     for label, spec in runs.items():
-        r = spec.get("r", estimate.r)
-        trace, per_it, t_fact = run_variant(
-            problem, u_ref, r, spec["mode_options"], condensed=condensed or None
+        auto = spec.get("r") == "auto"
+        trace, per_it, t_fact, t_own, r = run_variant(
+            problem,
+            u_ref,
+            spec.get("r", estimate.r),
+            spec["mode_options"],
+            condensed=None if auto else condensed or None,
         )
-        traces[label] = (r, trace, per_it, t_fact)
-        if r == estimate.r:
+        shared = r == estimate.r and (condensed or not auto)
+        traces[label] = (r, trace, per_it, t_fact, t_own if auto else t_penalty, shared)
+        if shared:
             factorisations.append(t_fact)
     # The machines are noisy (the same factorisation varies by 30 % between runs): each
     # factorisation time is the fastest of the run.
     fact = min(factorisations)
     t_plain = (plain_fact if condensed else fact) + t_solve
+    default = "polished" if estimate.details["method"] == "dense" else "both"
     rows = []
-    for label, (r, trace, per_it, t_fact) in traces.items():
+    for label, (r, trace, per_it, t_fact, t_r, shared) in traces.items():
         row = {"mesh": name, "nodes": scene.num_nodes, "variant": label, "r": f"{r:.5g}"}
-        t_fact = fact if r == estimate.r else t_fact
+        row["default"] = "yes" if label == default else ""
+        t_fact = fact if shared else t_fact
         for target in TARGETS:
             its = trace.iterations_to(target)
             key = f"{target:.0e}"
             row[f"iter {key}"] = its if its is not None else "–"
             if its is not None:
-                t_contact = t_penalty + t_fact + its * per_it
+                t_contact = t_r + t_fact + its * per_it
                 row[f"time {key} [s]"] = f"{t_contact:.3g}"
                 row[f"contact/plain {key}"] = f"{t_contact / t_plain:.2f}"
             else:
                 row[f"time {key} [s]"] = row[f"contact/plain {key}"] = "–"
         row["plain [s]"] = f"{t_plain:.3g}"
-        row["r* [s]"] = f"{t_penalty:.3g}"
+        row["r* [s]"] = f"{t_r:.3g}"
         row["factorisation [s]"] = f"{t_fact:.3g}"
         row["factorisations min-max [s]"] = f"{min(factorisations):.3g}-{max(factorisations):.3g}"
         row["per iteration [s]"] = f"{per_it:.2g}"
         rows.append(row)
         say("   " + ", ".join(f"{k} {v}" for k, v in row.items() if k not in ("mesh", "nodes")))
     if not with_r_bar:  # is any penalty of the r̄ grid as fast as the default?
-        cap = traces["both"][1].iterations_to(TARGETS[-1]) if "both" in traces else None
+        cap = traces[default][1].iterations_to(TARGETS[-1]) if default in traces else None
         if cap is not None:
-            bound = r_bar_bound(problem, u_ref, estimate.r, {"alpha": 1.0, "anderson": 0}, cap)
+            bound = r_bar_bound(problem, u_ref, estimate.r, PAPER, cap)
             row = {"mesh": name, "nodes": scene.num_nodes, "variant": "paper r̄", "r": "12 samples"}
             row |= {f"iter {t:.0e}": its for t, its in zip(TARGETS, bound, strict=True)}
             rows.insert(1, row | {k: "–" for k in rows[0] if k not in row})
@@ -258,57 +288,127 @@ SUMMARY_COLUMNS = {
     "paper r̄": "paper r̄",
     "relaxed": "relaxed α=1.6",
     "anderson": "Anderson 5",
-    "both": "both (default)",
+    "both": "both",
+    "polished": "both + polish",
 }
 
 
 def summary_rows(rows):
-    """One row per mesh (the README's table): iterations to 1e-6 / 1e-8 per variant."""
+    """One row per mesh (the README's table): iterations to 1e-6 / 1e-8 per variant.
+
+    The default (bold) is ``both + polish`` where the solver polishes by default (2D),
+    ``both`` elsewhere; the time ratios are the default's, and the polished variant's.
+    """
     meshes: dict[str, dict] = {}
     for row in rows:
         name = f"{row['mesh']} ({row['nodes']})"
         summary = meshes.setdefault(name, {"mesh (nodes)": name})
         pair = f"{row['iter 1e-06']} / {row['iter 1e-08']}"
         column = SUMMARY_COLUMNS[row["variant"]]
-        summary[column] = f"**{pair}**" if row["variant"] == "both" else pair
+        summary[column] = f"**{pair}**" if row.get("default") == "yes" else pair
         if row["variant"] == "paper r*":
             summary["_paper"] = (row["iter 1e-06"], row["iter 1e-08"])
-        if row["variant"] == "both":
-            summary["_both"] = row
+        if row.get("default") == "yes":
+            summary["_default"] = row
+        if row["variant"] == "polished":
+            summary["_polished"] = row
     table = []
     for name, summary in meshes.items():
-        both, paper = summary.pop("_both"), summary.pop("_paper")
+        default, paper = summary.pop("_default"), summary.pop("_paper")
+        polished = summary.pop("_polished", None)
         out = {"mesh (nodes)": name}
         out.update({c: summary.get(c, "–") for c in SUMMARY_COLUMNS.values()})
-        out["both / paper r*"] = " / ".join(
+        out["default / paper r*"] = " / ".join(
             f"{int(b) / int(p):.2f}" if str(b).isdigit() and str(p).isdigit() else "–"
-            for b, p in zip((both["iter 1e-06"], both["iter 1e-08"]), paper, strict=True)
+            for b, p in zip((default["iter 1e-06"], default["iter 1e-08"]), paper, strict=True)
         )
-        out["contact / plain"] = f"{both['contact/plain 1e-06']} / {both['contact/plain 1e-08']}"
-        out["r* [s]"] = both["r* [s]"]
-        out["factorisation [s]"] = both["factorisation [s]"]
-        out["plain [s]"] = both["plain [s]"]
+        out["contact / plain"] = (
+            f"{default['contact/plain 1e-06']} / {default['contact/plain 1e-08']}"
+        )
+        if polished is not None and polished is not default:
+            out["contact / plain"] += (
+                f" (polished: {polished['contact/plain 1e-06']} / "
+                f"{polished['contact/plain 1e-08']})"
+            )
+        out["r* [s]"] = default["r* [s]"]
+        out["factorisation [s]"] = default["factorisation [s]"]
+        out["plain [s]"] = default["plain [s]"]
         table.append(out)
     return table
 
 
-def print_select_grid(rows):
-    """The README's grid: iterations to 1e-6 / 1e-8 summed over the meshes, per (α, k)."""
-    totals: dict[tuple[float, int], list[int]] = {}
+def _select_key(label):
+    """(α, memory, polish, rounds) of a ``--select`` variant label."""
+    parts = label.split(", ")
+    alpha, memory = float(parts[0].removeprefix("alpha ")), int(parts[1].removeprefix("m "))
+    rounds = [int(p.removeprefix("rounds ")) for p in parts if p.startswith("rounds ")]
+    return alpha, memory, "polish" in parts, rounds[0] if rounds else polish_module.MAX_ROUNDS
+
+
+def _select_totals(rows, keep):
+    """Iterations to 1e-6 / 1e-8 and seconds to 1e-8, summed per key over the meshes."""
+    totals: dict[tuple, list[float]] = {}
     for row in rows:
-        alpha, memory = row["variant"].removeprefix("alpha ").split(", m ")
-        total = totals.setdefault((float(alpha), int(memory)), [0, 0])
+        key = _select_key(row["variant"])
+        if not keep(key):
+            continue
+        total = totals.setdefault(key, [0, 0, 0.0])
         for i, target in enumerate(("iter 1e-06", "iter 1e-08")):
             total[i] += int(row[target]) if str(row[target]).isdigit() else 10**6
-    alphas = sorted({a for a, _ in totals})
-    memories = sorted({m for _, m in totals})
-    table = [
-        {"α \\ memory": a} | {str(m): " / ".join(map(str, totals[a, m])) for m in memories}
-        for a in alphas
-    ]
+        time_8 = row["time 1e-08 [s]"]
+        total[2] += float(time_8) if time_8 != "–" else float("inf")
+    return totals
+
+
+def print_select_grid(rows):
+    """The README's grids: iterations to 1e-6 / 1e-8 summed over the meshes.
+
+    Without polishing per (α, memory) over every mesh; with polishing (2D meshes) per
+    (α, memory), and per number of correction rounds, with the seconds to 1e-8.
+    """
+    plain = _select_totals(rows, lambda key: not key[2])
+    polished = _select_totals(rows, lambda key: key[2] and key[3] == polish_module.MAX_ROUNDS)
+    rounds = _select_totals(rows, lambda key: key[2] and key[:2] == (1.6, 5))
+    tables = []
+    for title, totals in (
+        ("without polishing, every mesh", plain),
+        ("with polishing, the 2D meshes", polished),
+    ):
+        alphas = sorted({k[0] for k in totals})
+        memories = sorted({k[1] for k in totals})
+        tables.append(
+            (
+                title,
+                [
+                    {"α \\ memory": a}
+                    | {
+                        str(m): " / ".join(str(v) for v in totals[key][:2])
+                        for m in memories
+                        for key in totals
+                        if key[:2] == (a, m)
+                    }
+                    for a in alphas
+                ],
+            )
+        )
+    tables.append(
+        (
+            "with polishing (α = 1.6, memory 5), per correction rounds: iterations and "
+            "seconds to 1e-8, the 2D meshes",
+            [
+                {
+                    "rounds": key[3],
+                    "iterations 1e-6 / 1e-8": f"{v[0]} / {v[1]}",
+                    "seconds to 1e-8": f"{v[2]:.3g}",
+                }
+                for key, v in sorted(rounds.items(), key=lambda item: item[0][3])
+            ],
+        )
+    )
     if COMM.rank == 0:
-        print("\niterations to 1e-6 / 1e-8, summed over the meshes\n")
-        print(markdown_table(table), flush=True)
+        for title, table in tables:
+            print(f"\niterations to 1e-6 / 1e-8, summed: {title}\n")
+            print(markdown_table(table), flush=True)
 
 
 def print_summary(rows):
@@ -344,18 +444,31 @@ def main():
 
     if args.select:
         grid = {
-            f"alpha {a}, m {m}": {"mode_options": {"alpha": a, "anderson": m}}
+            f"alpha {a}, m {m}": {"mode_options": {"alpha": a, "anderson": m, "polish": False}}
             for a in (1.0, 1.3, 1.6, 1.8)
             for m in (0, 3, 5, 10)
         }
+        # polishing is the default where S_C is at hand (2D): its grid on the 2D meshes
+        polish_grid = {
+            f"alpha {a}, m {m}, polish": {
+                "mode_options": {"alpha": a, "anderson": m, "polish": True}
+            }
+            for a in (1.0, 1.6)
+            for m in (0, 5)
+        } | {
+            f"alpha 1.6, m 5, polish, rounds {n}": {
+                "mode_options": {"alpha": 1.6, "anderson": 5, "polish": True, "rounds": n}
+            }
+            for n in (1, 3, 30)
+        }
         meshes = [
-            ("example1 h=1/64", example1(h=1 / 64), True),
-            ("hertz level 2", example2(level=2), False),
-            ("example3 level 2", example3(level=2), True),
+            ("example1 h=1/64", example1(h=1 / 64), True, grid | polish_grid),
+            ("hertz level 2", example2(level=2), False, grid | polish_grid),
+            ("example3 level 2", example3(level=2), True, grid),
         ]
         rows = []
-        for name, scene, aligned in meshes:
-            rows += bench_mesh(name, scene, aligned, False, grid)
+        for name, scene, aligned, variants in meshes:
+            rows += bench_mesh(name, scene, aligned, False, variants)
         write_table(rows, out / "acceleration_select.csv")
         print_select_grid(rows)
         return

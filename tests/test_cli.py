@@ -38,7 +38,17 @@ def test_run_writes_json_and_xdmf(tmp_path_factory):
 def test_run_reports_non_convergence(tmp_path_factory):
     tmp = _shared_tmp(tmp_path_factory, "fail")
     status = main(
-        ["run", "example1", "--h", "0.125", "--max-iter", "2", "--json", str(tmp / "s.json")]
+        [
+            "run",
+            "example1",
+            "--h",
+            "0.125",
+            "--max-iter",
+            "2",
+            "--no-polish",
+            "--json",
+            str(tmp / "s.json"),
+        ]
     )
     assert status == 2
     assert json.loads((tmp / "s.json").read_text())["converged"] is False

@@ -108,7 +108,7 @@ def test_sweep_factorises_once_and_counts_like_ordinary_factorisations():
 @serial_only
 def test_condensed_admm_matches_ordinary():
     problem = example2(level=0).problem()
-    with ADMMSolver(problem, penalty=2500.0, condensed=True) as solver:
+    with ADMMSolver(problem, penalty=2500.0, condensed=True, polish=False) as solver:
         first = solver.solve()
     with ADMMSolver(problem, penalty=2500.0, condensed=False) as solver:
         second = solver.solve()

@@ -58,10 +58,14 @@ def test_parallel_matches_serial(mesher, options):
 @parallel_only
 def test_parallel_auto_penalty_matches_serial():
     """penalty="auto" in 2D: r* dense on both; the serial ADMM solves with the condensed
-    factorisation, the distributed one with a factorisation of A + r*K."""
+    factorisation, the distributed one with a factorisation of A + r*K. Both polish
+    (rank 0 solves the dense active-set problem), at the same iteration."""
     par, _, up, _, lp = _solve(MPI.COMM_WORLD, 1 / 16, "gmsh", penalty="auto")
     ser, _, us, _, ls = _solve(MPI.COMM_SELF, 1 / 16, "gmsh", penalty="auto")
     assert par.penalty == pytest.approx(ser.penalty, rel=1e-10)
     assert par.iterations == ser.iterations
+    assert par.history["accelerated"] == ser.history["accelerated"]
+    assert par.extra["polish"] == ser.extra["polish"] | {"time": par.extra["polish"]["time"]}
+    assert par.extra["polish"]["polished_at"] == par.iterations
     assert rel_diff(up, us) <= 1e-10
     assert rel_diff(lp, ls) <= 1e-10

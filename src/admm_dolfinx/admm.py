@@ -21,6 +21,14 @@ Two ideas cut the iteration count on the same factorisation:
   (the rejected evaluation still counts as an iteration). Extrapolated states are
   projected onto p ≤ g, λ ≥ 0.
 
+Where the dense Schur complement S_C of A onto the contact dofs is at hand (2D with
+a MUMPS factorisation: it also gives r*), *active-set polishing* (``polish``) finishes
+the solve: after every iteration the guess 𝒜 = {λ⁺ > 0}, corrected by a few
+primal-dual active-set steps on the dense m × m problem, gives the exact solution for
+𝒜 (:mod:`admm_dolfinx.polish`). A state that satisfies every sign condition is
+proposed like an Anderson step, and the next step-1 solve expands it to the
+displacement, so a polished solve ends as soon as ADMM has found the contact set.
+
 Stopping tests:
 
 * ``"kkt"`` (default): the scaled fixed-point residual ‖T(z) − z‖_W / ‖T(z)‖_W and the
@@ -63,6 +71,7 @@ from admm_dolfinx.kkt import KKTResiduals, _ratio, compute_kkt_residuals, gap_re
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.penalty import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_penalty
 from admm_dolfinx.petsc import unique_prefix
+from admm_dolfinx.polish import ActiveSetPolish
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]
@@ -80,6 +89,9 @@ DEFAULT_ALPHA = 1.6
 DEFAULT_ANDERSON = 5
 
 _STOPPING = ("kkt", "change")
+#: ``history["accelerated"]`` codes: what the evaluated state was.
+_REJECTED, _PLAIN, _ANDERSON, _POLISHED = -1, 0, 1, 2
+_NOTES = {_PLAIN: "", _ANDERSON: " (Anderson)", _POLISHED: " (polished)"}
 #: A solve that needs this many iterations or more says so in ``result.extra["warning"]``.
 SLOW_ITERATIONS = 300
 
@@ -99,8 +111,9 @@ class ADMMResult:
         history: Per-iteration lists: ``du``, ``dp`` (relative changes of u and p),
             ``fpr`` (scaled fixed-point residual), ``feasibility``, ``complementarity``,
             ``equilibrium`` (relative KKT residuals), ``active`` (global number of
-            nodes with λ > 0) and ``accelerated`` (1 if the evaluated state was an
-            accepted Anderson extrapolation, −1 if rejected, 0 for a plain step).
+            nodes with λ > 0) and ``accelerated`` (what the evaluated state was: 0 a
+            plain step, 1 an accepted Anderson extrapolation, 2 an accepted polished
+            state, −1 a rejected proposal).
         timings: Wall-clock seconds: ``assembly`` (problem operators), ``penalty``
             (r*), ``operator`` (A + rK), ``factorization``, ``iterations``, ``kkt``,
             ``total``.
@@ -108,10 +121,14 @@ class ADMMResult:
         multiplier: λ at the owned contact nodes (local array).
         num_active: Global number of contact nodes with λ > 0.
         num_contact_nodes: Global number m of contact nodes.
-        settings: The solver settings (mode, alpha, anderson, stopping, rtol).
-        extra: ``max_pressure``, the ``penalty_estimate`` (as a dict) if any, and a
-            ``warning`` (non-empty when the solve was slow: ≥ 300 iterations, with the
-            observed contraction rate and the likely cause).
+        settings: The solver settings (mode, alpha, anderson, stopping, rtol,
+            max_iter, polish) and ``stopped_by``.
+        extra: ``max_pressure``, the ``penalty_estimate`` (as a dict) if any,
+            ``polish`` (None when off; else ``polished_at``, the iteration that
+            evaluated the polished state or None, ``attempts``, ``rounds`` (dense
+            solves) and ``time``, seconds within the iterations), and a ``warning``
+            (non-empty when the solve was slow: ≥ 300 iterations, with the observed
+            contraction rate and the likely cause).
     """
 
     u: fem.Function
@@ -144,7 +161,8 @@ class ADMMResult:
         lines = [
             f"ADMM {status} in {self.iterations} iterations, r = {self.penalty:.6g}{how}",
             f"  {s.get('mode', '')} mode: alpha {s.get('alpha')}, Anderson memory "
-            f"{s.get('anderson')}, stopping '{s.get('stopping')}' at rtol {s.get('rtol'):g}",
+            f"{s.get('anderson')}, polish {'on' if s.get('polish') else 'off'}, stopping "
+            f"'{s.get('stopping')}' at rtol {s.get('rtol'):g}",
             f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
             f"  max pressure = {self.extra.get('max_pressure', float('nan')):.6g}",
             "  KKT residuals (relative): "
@@ -152,6 +170,14 @@ class ADMMResult:
             f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}",
             "  time [s]: " + ", ".join(f"{name} {value:.3f}" for name, value in t.items()),
         ]
+        polish = self.extra.get("polish")
+        if polish:
+            at = polish["polished_at"]
+            lines.append(
+                f"  polish: {'exact state from iteration ' + str(at) if at else 'not used'}"
+                f" ({polish['attempts']} attempts, {polish['rounds']} dense solves, "
+                f"{polish['time']:.3f} s)"
+            )
         if self.extra.get("warning"):
             lines.append(f"  WARNING: {self.extra['warning']}")
         return "\n".join(lines)
@@ -208,11 +234,19 @@ class ADMMSolver:
             (default): when ``penalty="auto"`` in 2D on one process with a MUMPS
             factorisation, which then also gives r* exactly; ``True``: always (2D
             sizes of Γ_C, one process, MUMPS; e.g. for sweeps over r); ``False``: never.
+        polish: Active-set polishing from the dense Schur complement S_C (see the
+            module docstring). ``None`` (default): wherever S_C is computed anyway, i.e.
+            with ``penalty="auto"`` in 2D with a MUMPS factorisation (on any number of
+            processes: under MPI a private condensed factorisation serves r* and the
+            polisher), or with ``condensed=True``; ``True``: always (computing S_C if
+            need be: in 3D it is dense on a surface, and costly); ``False``: never.
+            Paper mode never polishes.
 
     Raises:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
             (0, 2), a negative Anderson memory, or an unknown mode or stopping test;
-            for ``condensed=True`` under MPI or without a MUMPS factorisation.
+            for ``condensed=True`` under MPI or without a MUMPS factorisation, and
+            ``polish=True`` without a MUMPS factorisation.
 
     r* and the factorisation are computed here, once. They depend on A and NᵀMN only,
     so :meth:`solve` may be called again after
@@ -239,11 +273,12 @@ class ADMMSolver:
         petsc_options: Mapping[str, Any] | None = None,
         petsc_options_prefix: str | None = None,
         condensed: bool | None = None,
+        polish: bool | None = None,
     ):
         if not isinstance(problem, ContactProblem):
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
         if mode == "paper":
-            alpha, anderson, stopping = 1.0, 0, "change"
+            alpha, anderson, stopping, polish = 1.0, 0, "change", False
             rtol = PAPER_RTOL if rtol is None else rtol
         elif mode != "accelerated":
             raise ValueError(f"mode must be 'accelerated' or 'paper', got {mode!r}.")
@@ -274,34 +309,59 @@ class ADMMSolver:
         self.anderson = int(anderson)
         self.stopping = stopping
         self.prefix = petsc_options_prefix or unique_prefix("admm_")
-        possible = problem.comm.size == 1 and condensed_factor_applies(
-            problem, petsc_options, any_dimension=condensed is True
-        )
-        if condensed is True and not possible:
+        # S_C, the Schur complement of A onto the contact dofs, gives r* exactly (2D)
+        # and polishing; solving with it (condensed) needs one process
+        explicit = condensed is True or polish is True
+        schur_possible = condensed_factor_applies(problem, petsc_options, any_dimension=explicit)
+        serial = problem.comm.size == 1
+        if condensed is True and not (serial and schur_possible):
             raise ValueError(
                 "condensed=True needs one process and a MUMPS factorisation (PETSc "
                 "solves with a Schur complement serially only); pass condensed=None."
             )
+        if polish is True and not schur_possible:
+            raise ValueError(
+                "polish=True needs the Schur complement of A onto the contact dofs, "
+                "from a MUMPS factorisation (ksp_type preonly, pc_type cholesky or lu); "
+                f"got petsc_options={dict(petsc_options or {})}. Pass polish=None."
+            )
         if condensed is None:
-            condensed = auto and possible
+            condensed = serial and schur_possible and (auto or polish is True)
         operator_class = CondensedOperator if condensed else PenalisedOperator
         self.operator = operator_class(problem, self.prefix, petsc_options)
+        # where the step-1 operator is not condensed, a private condensed factorisation
+        # serves r* (2D) and polishing, and is freed once S_C has been read
+        schur_source = self.operator if condensed else None
+        private = None
+        if schur_source is None and schur_possible and polish is not False and (auto or polish):
+            private = CondensedOperator(problem, self.prefix + "schur_", petsc_options)
+            schur_source = private
+        #: Active-set polishing (None when off).
+        self.polisher: ActiveSetPolish | None = None
+        if schur_source is not None and polish is not False:
+            self.polisher = ActiveSetPolish.from_operator(problem, schur_source)
+        self.polish = self.polisher is not None
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
-        if auto:
-            # r* gets this solver's own operator: a condensed one gives r* densely and
-            # serves the ADMM at r* with no new sparse factorisation. Otherwise, at the
-            # default tolerance r* factorises nothing of the whole body; where it does
-            # (tight tolerance, floating body: at an auxiliary r_a), the factorisation
-            # at r* below reuses its symbolic analysis.
-            self.penalty_estimate = estimate_penalty(
-                problem,
-                tol=penalty_tol,
-                operator=self.operator,
-                petsc_options=petsc_options,
-                petsc_options_prefix=self.prefix + "penalty_",
-            )
-            penalty = self.penalty_estimate.r
+        self._time_schur = private.timings["factorization"] if private else 0.0
+        try:
+            if auto:
+                # r* gets this solver's own operator: a condensed one gives r* densely
+                # and serves the ADMM at r* with no new sparse factorisation. Otherwise,
+                # at the default tolerance r* factorises nothing of the whole body; where
+                # it does (tight tolerance, floating body: at an auxiliary r_a), the
+                # factorisation at r* below reuses its symbolic analysis.
+                self.penalty_estimate = estimate_penalty(
+                    problem,
+                    tol=penalty_tol,
+                    operator=schur_source or self.operator,
+                    petsc_options=petsc_options,
+                    petsc_options_prefix=self.prefix + "penalty_",
+                )
+                penalty = self.penalty_estimate.r
+        finally:
+            if private is not None:
+                private.destroy()
         self.set_penalty(penalty)
 
     # ------------------------------------------------------------------ set-up
@@ -319,7 +379,10 @@ class ADMMSolver:
         Args:
             r: Penalty parameter, > 0.
         """
-        self.operator.set_penalty(_check_penalty(r))
+        r = _check_penalty(r)
+        self.operator.set_penalty(r)
+        if self.polisher is not None:
+            self.polisher.set_penalty(r)
 
     @property
     def ksp(self) -> PETSc.KSP:
@@ -336,6 +399,7 @@ class ADMMSolver:
             "stopping": self.stopping,
             "rtol": self.rtol,
             "max_iter": self.max_iter,
+            "polish": self.polish,
         }
 
     # ------------------------------------------------------------------ solve
@@ -431,7 +495,11 @@ class ADMMSolver:
         stopped_by = "test"
         iterations = 0
         accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
-        proposal = False  # whether z is an Anderson extrapolation
+        proposal = _PLAIN  # what z is: a plain step, or an Anderson or polished proposal
+        polisher = self.polisher
+        if polisher is not None:
+            polisher.reset()
+        polished_at = None
         lam = z[m:]
         logger.info("ADMM: m = %d contact nodes, r = %.6g, %s", c.num_global, r, self.settings)
         try:
@@ -472,10 +540,12 @@ class ADMMSolver:
 
                     # safeguard: an extrapolated state must lower the fixed-point residual
                     # (written as "not <" so that a NaN residual is rejected too)
-                    rejected = proposal and accepted is not None and not res < accepted[1]
+                    rejected = proposal != _PLAIN and accepted is not None and not res < accepted[1]
+                    if proposal == _POLISHED and not rejected:
+                        polished_at = k
                     for key, val in zip(
                         keys,
-                        (du, dp, fpr, feas, comp, eq, active, -1 if rejected else int(proposal)),
+                        (du, dp, fpr, feas, comp, eq, active, _REJECTED if rejected else proposal),
                         strict=True,
                     ):
                         history[key].append(val)
@@ -490,7 +560,7 @@ class ADMMSolver:
                         du,
                         dp,
                         active,
-                        " (Anderson step rejected)" if rejected else "",
+                        " (proposal rejected)" if rejected else _NOTES[proposal],
                     )
                     if self.stopping == "change":
                         done = du <= self.rtol and dp <= self.rtol
@@ -502,17 +572,21 @@ class ADMMSolver:
                         converged = True
                         break
                     if rejected:
-                        z, proposal = accepted[0].copy(), False  # the plain step instead
+                        z, proposal = accepted[0].copy(), _PLAIN  # the plain step instead
                         continue
                     accepted = (Tz, res)
-                    proposal = False
+                    proposal = _PLAIN
                     z = Tz
                     if mixer is not None:
                         candidate = mixer.update(np.concatenate([p_in, lam_in]), Tz)
                         if candidate is not None:
                             candidate[:m] = np.minimum(candidate[:m], g)
                             candidate[m:] = np.maximum(candidate[m:], 0.0)
-                            z, proposal = candidate, True
+                            z, proposal = candidate, _ANDERSON
+                    if polisher is not None and polished_at is None:
+                        exact = polisher.attempt(nu, r * p_in - lam_in, lam > 0.0)
+                        if exact is not None:
+                            z, proposal = np.concatenate(exact), _POLISHED
                 t_iter = time.perf_counter() - t0
             u.x.scatter_forward()
 
@@ -526,7 +600,8 @@ class ADMMSolver:
         pressure = problem.pressure_function(lam)
         timings = {
             "assembly": problem.timings.get("assembly", 0.0),
-            "penalty": self.penalty_estimate.time if self.penalty_estimate else 0.0,
+            "penalty": (self.penalty_estimate.time if self.penalty_estimate else 0.0)
+            + self._time_schur,
             "operator": self.operator.timings["operator"],
             "factorization": self.operator.timings["factorization"],
             "iterations": t_iter,
@@ -557,6 +632,14 @@ class ADMMSolver:
                 "max_pressure": problem.global_norm(lam, np.inf),
                 "penalty_estimate": self.penalty_estimate.as_dict()
                 if self.penalty_estimate
+                else None,
+                "polish": {
+                    "polished_at": polished_at,
+                    "attempts": polisher.attempts,
+                    "rounds": polisher.rounds,
+                    "time": polisher.time,
+                }
+                if polisher is not None
                 else None,
             },
         )

@@ -60,6 +60,7 @@ def cmd_run(args) -> int:
             mode=args.mode,
             rtol=args.rtol,
             max_iter=args.max_iter,
+            polish=False if args.no_polish else None,
             petsc_options_prefix="run_",
         ) as solver:
             result = solver.solve()
@@ -149,6 +150,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--rtol", type=float, default=None, help="stopping tolerance (default: the mode's)"
     )
     run.add_argument("--max-iter", type=int, default=1000, help="iteration cap")
+    run.add_argument(
+        "--no-polish",
+        action="store_true",
+        help="do not finish with active-set polishing (on by default where the Schur "
+        "complement onto the contact dofs is at hand: 2D)",
+    )
     run.add_argument("--json", help="write a JSON summary to this file")
     run.add_argument(
         "--out", help="write solution.xdmf, the figures and summary.json to this folder"

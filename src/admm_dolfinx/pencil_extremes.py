@@ -68,6 +68,7 @@ from admm_dolfinx.preconditioned_eigen import (
 __all__ = [
     "NeedsFactorisation",
     "affine_pressure_loads",
+    "compliance_matrix",
     "extremes_from_schur",
     "lambda_max_factorised",
     "lambda_max_multigrid",
@@ -340,6 +341,35 @@ def _dense_symmetric_eigenvalues(matrix: np.ndarray, prefix: str) -> np.ndarray:
         mat.destroy()
 
 
+def compliance_matrix(
+    schur: np.ndarray, k_cc: np.ndarray, weights: np.ndarray, r: float
+) -> np.ndarray:
+    """T = Wᵀ (S_C + r K_CC)⁻¹ W, the m × m compliance of Γ_C at penalty r; dense.
+
+    (M^{½} N (A + rK)⁻¹ Nᵀ M^{½}, read off the condensed stiffness.) Its eigenvalues
+    are θ = λ / (1 + rλ) for the eigenvalues λ of the contact pencil.
+
+    Args:
+        schur: S_C, symmetric c × c.
+        k_cc: K = NᵀMN restricted to C × C.
+        weights: W = Nᵀ M^{½} on C, c × m.
+        r: Penalty (> 0).
+
+    Raises:
+        RuntimeError: If S_C + r K_CC is not positive definite.
+    """
+    try:
+        lower = np.linalg.cholesky(schur + r * k_cc)
+    except np.linalg.LinAlgError as error:
+        raise RuntimeError(
+            "The Schur complement of A onto the contact dofs plus r NᵀMN is not "
+            "positive definite: the body has a motion that neither the Dirichlet "
+            "conditions nor Γ_C restrain."
+        ) from error
+    half = np.linalg.solve(lower, weights)  # L⁻¹ W, so that T = (L⁻¹W)ᵀ(L⁻¹W)
+    return half.T @ half
+
+
 def extremes_from_schur(
     schur: np.ndarray, k_cc: np.ndarray, weights: np.ndarray, prefix: str = "pencil_dense_"
 ) -> tuple[float, float, int]:
@@ -369,16 +399,7 @@ def extremes_from_schur(
             motion of the body that Γ_C does not see), or every mode is rigid.
     """
     r_a = 1e-3 * float(np.trace(schur) / np.trace(k_cc))
-    try:
-        lower = np.linalg.cholesky(schur + r_a * k_cc)
-    except np.linalg.LinAlgError as error:
-        raise RuntimeError(
-            "The Schur complement of A onto the contact dofs plus r NᵀMN is not "
-            "positive definite: the body has a motion that neither the Dirichlet "
-            "conditions nor Γ_C restrain."
-        ) from error
-    half = np.linalg.solve(lower, weights)  # L⁻¹ W, so that T = (L⁻¹W)ᵀ(L⁻¹W)
-    theta = _dense_symmetric_eigenvalues(half.T @ half, prefix)
+    theta = _dense_symmetric_eigenvalues(compliance_matrix(schur, k_cc, weights, r_a), prefix)
     finite = theta[1.0 - r_a * theta > _RIGID_TOL]
     if finite.size == 0:
         raise RuntimeError("Every contact mode is a rigid motion of the body.")
