@@ -94,6 +94,7 @@ if args.samples > 0:
     say(
         f"sampled r̄ = {sweep.r_best:.6g} needs {sweep.iterations_best} iterations; "
         f"r = {result.penalty:.6g} needs {result.iterations}"
+        f"{' (polished)' if result.polished else ''}"
     )
 
 # ## Output: the deformed configuration (Fig. 6) and the normal stress (Fig. 7)

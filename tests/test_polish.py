@@ -31,6 +31,7 @@ def test_polished_solution_matches_snes_vi(h):
     ref = solve_snes_vi(problem)
     info = result.extra["polish"]
     assert info["polished_at"] == result.iterations  # the polished state met the test
+    assert result.polished and not plain.polished
     assert result.history["accelerated"][-1] == 2
     assert result.iterations < plain.iterations
     # exact, not merely within the stopping tolerance (1e-6)
@@ -91,6 +92,11 @@ def test_attempt_gives_the_exact_state_from_the_true_active_set():
             assert rel_diff(_global(problem, everything[1]), _global(problem, lam)) <= 1e-10
         # no guess, no attempt
         assert polisher.attempt(normal_u, q, np.zeros_like(true_active)) is None
+        # out of time: skipped, not tried
+        polisher.reset()
+        assert polisher.attempt(normal_u, q, true_active, budget=-1.0) is None
+        assert (polisher.skipped, polisher.attempts, polisher.rounds) == (1, 0, 0)
+        assert polisher.attempt(normal_u, q, true_active) is not None
 
 
 def test_failed_attempts_leave_the_iteration_converging(monkeypatch):

@@ -126,7 +126,9 @@ class ADMMResult:
         extra: ``max_pressure``, the ``penalty_estimate`` (as a dict) if any,
             ``polish`` (None when off; else ``polished_at``, the iteration that
             evaluated the polished state or None, ``attempts``, ``rounds`` (dense
-            solves) and ``time``, seconds within the iterations), and a ``warning``
+            solves), ``skipped`` (attempts skipped because polishing had taken longer
+            than the rest of the iterations) and ``time``, seconds within the
+            iterations), and a ``warning``
             (non-empty when the solve was slow: ≥ 300 iterations, with the observed
             contraction rate and the likely cause).
     """
@@ -144,6 +146,11 @@ class ADMMResult:
     num_contact_nodes: int
     settings: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def polished(self) -> bool:
+        """Whether the solve ended from a polished (exact active-set) state."""
+        return bool((self.extra.get("polish") or {}).get("polished_at"))
 
     def summary(self) -> str:
         """A short human-readable report (what the demos print)."""
@@ -584,7 +591,8 @@ class ADMMSolver:
                             candidate[m:] = np.maximum(candidate[m:], 0.0)
                             z, proposal = candidate, _ANDERSON
                     if polisher is not None and polished_at is None:
-                        exact = polisher.attempt(nu, r * p_in - lam_in, lam > 0.0)
+                        budget = time.perf_counter() - t0 - polisher.time
+                        exact = polisher.attempt(nu, r * p_in - lam_in, lam > 0.0, budget)
                         if exact is not None:
                             z, proposal = np.concatenate(exact), _POLISHED
                 t_iter = time.perf_counter() - t0
@@ -637,6 +645,7 @@ class ADMMSolver:
                     "polished_at": polished_at,
                     "attempts": polisher.attempts,
                     "rounds": polisher.rounds,
+                    "skipped": polisher.skipped,
                     "time": polisher.time,
                 }
                 if polisher is not None

@@ -96,7 +96,8 @@ def sample_penalty(
         petsc_options: Options of the step-1 solver.
         progress: Called as ``progress(k, n, r, iterations)`` after each sample.
         **solver_options: More :class:`~admm_dolfinx.ADMMSolver` options (``alpha``,
-            ``anderson``, ``stopping``).
+            ``anderson``, ``stopping``; ``polish`` is off unless given, so that the
+            counts are those of the ADMM iteration at each r).
 
     Returns:
         The sweep.
@@ -108,6 +109,7 @@ def sample_penalty(
     # one condensed factorisation serves every r where it can (2D, one process)
     serial = problem.comm.size == 1
     condensed = True if serial and condensed_factor_applies(problem, petsc_options) else None
+    solver_options.setdefault("polish", False)
     with ADMMSolver(
         problem,
         penalty=float(r_values[0]),
