@@ -23,7 +23,10 @@ the contact pencil.
 The guess 𝒜 = {λ⁺ > 0} comes from the ADMM iterate. It is corrected by
 primal-dual active-set steps (nodes with λ < 0 leave 𝒜, nodes that penetrate join it),
 at most :data:`MAX_ROUNDS` of them; a guess already tried is not tried again (the
-outcome depends on 𝒜 alone). Only a state that satisfies every sign condition is
+outcome depends on 𝒜 alone). An empty guess (the first iterates, before ADMM
+predicts any contact) starts from the unconstrained solution: its penetrating nodes
+join first. For a floating body that system is singular, and the attempt fails
+until ADMM's guess holds the body. Only a state that satisfies every sign condition is
 returned; the ADMM loop then evaluates it like any other proposal (safeguard and
 stopping test), so a polished result meets the same test as any other.
 
@@ -169,7 +172,7 @@ class ActiveSetPolish:
         Returns:
             ((p, λ) or None, the number of dense solves).
         """
-        if not guess.any() or guess.tobytes() in self._tried:
+        if guess.tobytes() in self._tried:
             return None, 0
         if self._compliance is None:
             try:  # never raise on rank 0 alone: the other ranks wait in a broadcast
@@ -198,7 +201,7 @@ class ActiveSetPolish:
             if not leave.any() and not join.any():
                 return (np.minimum(nu, g), np.maximum(lam, 0.0)), rounds
             active = (active & ~leave) | join
-            if not active.any() or active.tobytes() in self._tried:
+            if active.tobytes() in self._tried:
                 return None, rounds
         return None, MAX_ROUNDS
 
