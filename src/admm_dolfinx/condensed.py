@@ -24,8 +24,9 @@ dense front of c³/3 flops dominates the factorisation, so
 :func:`admm_dolfinx.penalty.estimate_penalty` and the solver use it in 2D only.
 
 PETSc computes the Schur complement in parallel (all of C on rank 0), but solves with
-it on one process only; under MPI the class serves the r* estimate and the ADMM
-factorises A + r*K separately (:attr:`CondensedOperator.can_solve`).
+it on one process only; under MPI the class serves the r* estimate and active-set
+polishing (:mod:`admm_dolfinx.polish`), and the ADMM factorises A + r*K separately
+(:attr:`CondensedOperator.can_solve`).
 """
 
 from __future__ import annotations

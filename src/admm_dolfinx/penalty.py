@@ -32,9 +32,9 @@ costs one numeric factorisation.  :attr:`PenaltyEstimate.solves` counts operator
 applications: substitutions with a factorisation, or AMG V-cycles.
 
 Partition dependence: the dense 2D r* is the same on any number of processes to
-round-off (tested to 1e-10; under MPI the condensed factorisation serves only r*,
-because PETSc solves with a Schur complement serially only, and the ADMM factorises
-A + r*K). Iteratively, at tolerances ≤ 1e-6, r* is the same on any number of
+round-off (tested to 1e-10; under MPI the condensed factorisation serves only r*
+and polishing, because PETSc solves with a Schur complement serially only, and the
+ADMM factorises A + r*K). Iteratively, at tolerances ≤ 1e-6, r* is the same on any number of
 processes to round-off (tested to 1e-6 under ``mpiexec -n 2``). At the default
 tolerance the multigrid aggregates depend on the partition, and r* with them, by about
 the error of θ (a few 1e-5 measured; tested ≤ 2e-4 under ``mpiexec -n 2``);
