@@ -140,3 +140,46 @@ def test_polish_in_3d_on_request():
     assert result.kkt.max() <= 1e-10
     assert rel_diff(_global(problem, result.u.x.array), _global(problem, default.u.x.array)) <= 1e-9
     assert MPI.COMM_WORLD.allreduce(result.multiplier.size) == problem.num_contact_nodes
+
+
+def test_polish_with_prescribed_tangential_displacement_on_a_curved_contact_boundary():
+    """u_x = 0.003 prescribed on a curved Γ_C: the fixed part of each normal moves the
+    node towards the obstacle by a known amount, which the polished system must carry."""
+    import ufl
+    from dolfinx import fem, mesh
+
+    from admm_dolfinx import ContactProblem, Plane
+
+    comm = MPI.COMM_WORLD
+    msh = mesh.create_rectangle(comm, [[0, 0], [2, 1]], [24, 12])
+    x = msh.geometry.x
+    x[:, 1] += 0.2 * (x[:, 0] - 1.0) ** 2 * (1.0 - x[:, 1])  # bottom y = 0.2 (x − 1)²
+    bottom = mesh.locate_entities_boundary(
+        msh, 1, lambda p: np.isclose(p[1], 0.2 * (p[0] - 1.0) ** 2)
+    )
+    top = mesh.locate_entities_boundary(msh, 1, lambda p: np.isclose(p[1], 1.0))
+    facets = np.concatenate([bottom, top])
+    values = np.concatenate([np.full(bottom.size, 3), np.full(top.size, 2)]).astype(np.int32)
+    order = np.argsort(facets)
+    tags = mesh.meshtags(msh, 1, facets[order], values[order])
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    mu, lmbda = 2000.0 / 2.6, 2000.0 * 0.3 / (1.3 * 0.4)
+    eps = ufl.sym(ufl.grad(u))
+    a = ufl.inner(2 * mu * eps + lmbda * ufl.tr(eps) * ufl.Identity(2), ufl.sym(ufl.grad(v)))
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
+    L = ufl.dot(fem.Constant(msh, (0.0, -20.0)), v) * ds(2)
+    V0 = V.sub(0)
+    V0c, _ = V0.collapse()
+    shift = fem.Function(V0c)
+    shift.x.array[:] = 0.003
+    bc = fem.dirichletbc(shift, fem.locate_dofs_topological((V0, V0c), 1, bottom), V0)
+    problem = ContactProblem(a * ufl.dx, L, [bc], tags, 3, Plane((0.0, -0.002), (0.0, 1.0)))
+    with ADMMSolver(problem, polish=False, rtol=1e-11, max_iter=5000) as solver:
+        tight = solver.solve()
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+    assert result.polished and 0 < result.num_active < problem.num_contact_nodes
+    assert result.kkt.max() <= 1e-10
+    assert rel_diff(_global(problem, result.u.x.array), _global(problem, tight.u.x.array)) <= 1e-9
+    assert rel_diff(_global(problem, result.multiplier), _global(problem, tight.multiplier)) <= 1e-8
