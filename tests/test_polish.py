@@ -124,6 +124,8 @@ def test_polish_options():
         assert solver.polisher is None
     with ADMMSolver(problem, penalty=3000.0, polish=True) as solver:
         assert solver.solve().extra["polish"]["polished_at"] is not None
+    with pytest.raises(TypeError, match="polish must be None"):
+        ADMMSolver(problem, polish="yes")
     with pytest.raises(ValueError, match="polish=True needs the Schur complement"):
         ADMMSolver(problem, polish=True, petsc_options={"ksp_type": "cg", "pc_type": "gamg"})
 

@@ -115,8 +115,8 @@ class ADMMResult:
             plain step, 1 an accepted Anderson extrapolation, 2 an accepted polished
             state, −1 a rejected proposal).
         timings: Wall-clock seconds: ``assembly`` (problem operators), ``penalty``
-            (r*), ``operator`` (A + rK), ``factorization``, ``iterations``, ``kkt``,
-            ``total``.
+            (r*), ``operator`` (A + rK, and the dense compliance of Γ_C when
+            polishing), ``factorization``, ``iterations``, ``kkt``, ``total``.
         kkt: Relative KKT residuals of (u, λ), computed independently after the loop.
         multiplier: λ at the owned contact nodes (local array).
         num_active: Global number of contact nodes with λ > 0.
@@ -305,6 +305,9 @@ class ADMMSolver:
             raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
         if stopping not in _STOPPING:
             raise ValueError(f"stopping must be one of {_STOPPING}, got {stopping!r}.")
+        for name, value in (("condensed", condensed), ("polish", polish)):
+            if value is not None and not isinstance(value, bool):
+                raise TypeError(f"{name} must be None (automatic), True or False, got {value!r}.")
         auto = isinstance(penalty, str) and penalty == "auto"
         if not auto:
             penalty = _check_penalty(penalty)
@@ -347,7 +350,6 @@ class ADMMSolver:
         self.polisher: ActiveSetPolish | None = None
         if schur_source is not None and polish is not False:
             self.polisher = ActiveSetPolish.from_operator(problem, schur_source)
-        self.polish = self.polisher is not None
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
         self._time_schur = private.timings["factorization"] if private else 0.0
@@ -372,6 +374,11 @@ class ADMMSolver:
         self.set_penalty(penalty)
 
     # ------------------------------------------------------------------ set-up
+    @property
+    def polish(self) -> bool:
+        """Whether the solves polish (see :mod:`admm_dolfinx.polish`)."""
+        return self.polisher is not None
+
     @property
     def penalty(self) -> float:
         """The current penalty parameter r."""
@@ -610,7 +617,8 @@ class ADMMSolver:
             "assembly": problem.timings.get("assembly", 0.0),
             "penalty": (self.penalty_estimate.time if self.penalty_estimate else 0.0)
             + self._time_schur,
-            "operator": self.operator.timings["operator"],
+            "operator": self.operator.timings["operator"]
+            + (self.polisher.setup_time if self.polisher else 0.0),
             "factorization": self.operator.timings["factorization"],
             "iterations": t_iter,
             "kkt": t_kkt,

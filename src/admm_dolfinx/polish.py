@@ -74,6 +74,7 @@ class ActiveSetPolish:
     Attributes:
         attempts: Guesses tried since :meth:`reset`.
         rounds: Dense solves since :meth:`reset`.
+        setup_time: Seconds of the last :meth:`set_penalty` (T = Wᵀ(S_C + rK_CC)⁻¹W).
         skipped: Attempts skipped for time since :meth:`reset`.
         time: Seconds spent since :meth:`reset` (all ranks wait for rank 0).
     """
@@ -92,7 +93,9 @@ class ActiveSetPolish:
         self._bounds = np.concatenate([[0], np.cumsum(sizes)])
         self._sqrt_mass = self._gather(np.sqrt(problem.contact.mass))
         self.penalty = float("nan")
+        self.setup_time = 0.0
         self._compliance: npt.NDArray[np.float64] | None = None
+        self._shifted: npt.NDArray[np.float64] | None = None
         self._gap: npt.NDArray[np.float64] | None = None
         self._tried: set[bytes] = set()
         self.attempts = self.rounds = self.skipped = 0
@@ -108,11 +111,24 @@ class ActiveSetPolish:
         return np.concatenate(parts, axis=-1) if self.comm.rank == 0 else None
 
     def set_penalty(self, r: float) -> None:
-        """Use the penalty r of the step-1 solves (T is recomputed when first needed)."""
-        if r != self.penalty:
-            self.penalty = float(r)
-            self._compliance = None
-            self._tried.clear()
+        """Use the penalty r of the step-1 solves: T and I − rT on rank 0; collective.
+
+        A set-up cost, like the factorisation (:attr:`setup_time`), not paid inside the
+        iterations.
+        """
+        if r == self.penalty:
+            return
+        t0 = time.perf_counter()
+        self.penalty = float(r)
+        self._tried.clear()
+        self._compliance = self._shifted = None
+        if self.comm.rank == 0:
+            try:  # never raise on rank 0 alone: the other ranks would wait
+                self._compliance = compliance_matrix(self._schur, self._k_cc, self._weights, r)
+                self._shifted = np.eye(self._compliance.shape[0]) - r * self._compliance
+            except RuntimeError as error:
+                logger.warning("Active-set polishing is off for this penalty: %s", error)
+        self.setup_time = self.comm.bcast(time.perf_counter() - t0, root=0)
 
     def reset(self) -> None:
         """Start a solve: read the current gap; forget the guesses tried; collective."""
@@ -172,17 +188,7 @@ class ActiveSetPolish:
         Returns:
             ((p, λ) or None, the number of dense solves).
         """
-        if guess.tobytes() in self._tried:
-            return None, 0
-        if self._compliance is None:
-            try:  # never raise on rank 0 alone: the other ranks wait in a broadcast
-                self._compliance = compliance_matrix(
-                    self._schur, self._k_cc, self._weights, self.penalty
-                )
-            except RuntimeError as error:
-                logger.warning("Active-set polishing is off for this penalty: %s", error)
-                self._compliance = np.zeros((0, 0))
-        if self._compliance.size == 0:
+        if self._compliance is None or guess.tobytes() in self._tried:
             return None, 0
         sq, g = self._sqrt_mass, self._gap
         t = sq * normal_u - self._compliance @ (sq * force)
@@ -207,9 +213,8 @@ class ActiveSetPolish:
 
     def _equality_solution(self, t, active, y_active):
         """Solve (I − rT) ŷ + T λ̂ = t with ŷ_𝒜 given and λ̂ = 0 off 𝒜 (rank 0)."""
-        r, T = self.penalty, self._compliance
+        r, T, shifted = self.penalty, self._compliance, self._shifted
         free = ~active
-        shifted = np.eye(T.shape[0]) - r * T
         system = np.empty_like(T)
         system[:, free] = shifted[:, free]
         system[:, active] = r * T[:, active]  # unknown λ̂/r: columns of the same scale
