@@ -263,3 +263,36 @@ def test_iterative_method_with_a_condensed_operator_uses_its_own():
     assert shared.details["method"] == "dense"
     assert iterative.details["method"] == "iterative"
     assert iterative.r == pytest.approx(shared.r, rel=0.05)
+
+
+@pytest.mark.parametrize("rigid", [0, 1, 6])
+def test_dense_krylov_ends_against_eigvalsh(rigid, monkeypatch):
+    """Above DENSE_ALL_EIGENVALUES the dense r* takes the two ends of T(r_a) with
+    Krylov–Schur (largest one at a time, rigid copies deflated; smallest by
+    shift-and-invert): the same λ_min, λ_max and rigid count as numpy's eigvalsh of
+    the pencil, with a repeated θ = 1/r_a of multiplicity up to 6."""
+    from admm_dolfinx import dense_pencil
+
+    rng = np.random.default_rng(7 + rigid)
+    m, c = 450, 600  # W: c × m of full column rank, as for curved Γ_C
+    q, _ = np.linalg.qr(rng.standard_normal((c, c)))
+    spectrum = np.concatenate([np.zeros(rigid), np.geomspace(1.0, 2e4, c - rigid)])
+    schur = (q * spectrum) @ q.T
+    schur = 0.5 * (schur + schur.T)
+    weights = rng.standard_normal((c, m))
+    k_cc = weights @ weights.T
+    # reference: every eigenvalue θ of T(r_a) by numpy, mapped to λ = θ/(1 − r_a θ)
+    r_a = 1e-3 * np.trace(schur) / np.trace(k_cc)
+    theta = np.linalg.eigvalsh(dense_pencil.compliance_matrix(schur, k_cc, weights, r_a))
+    finite = theta[1.0 - r_a * theta > dense_pencil.RIGID_TOL]
+    lam = finite / (1.0 - r_a * finite)
+    assert theta.size - finite.size == rigid
+    assert m > dense_pencil.DENSE_ALL_EIGENVALUES
+    lam_min, lam_max, count = dense_pencil.extremes_from_schur(schur, k_cc, weights, "t_")
+    assert count == rigid
+    assert lam_min == pytest.approx(lam[0], rel=1e-9)
+    assert lam_max == pytest.approx(lam[-1], rel=1e-9)
+    monkeypatch.setattr(dense_pencil, "DENSE_ALL_EIGENVALUES", m)  # SLEPc LAPACK: all
+    assert dense_pencil.extremes_from_schur(schur, k_cc, weights, "u_") == pytest.approx(
+        (lam_min, lam_max, rigid), rel=1e-9
+    )

@@ -13,7 +13,7 @@ complement S_C + r K_CC, so
   MUMPS's condensation of the right-hand side, a dense solve, and MUMPS's expansion
   (PETSc's ``MatFactorSetSchurIS`` interface);
 * the r* estimate reads the whole contact pencil off S_C densely (exact, see
-  :func:`admm_dolfinx.pencil_extremes.extremes_from_schur`).
+  :func:`admm_dolfinx.dense_pencil.extremes_from_schur`).
 
 Keeping C to the end constrains MUMPS's ordering (it runs AMD where A + rK gets AMF
 in 2D), which makes this factorisation, and somewhat its substitutions, dearer than

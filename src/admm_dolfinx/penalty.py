@@ -10,9 +10,9 @@ chooses between two methods and assembles the estimate.
 
 **Dense** (the default in 2D with a MUMPS factorisation): one factorisation of A
 condensed onto the contact dofs (:class:`~admm_dolfinx.condensed.CondensedOperator`)
-gives the dense Schur complement S_C, from which the whole pencil follows: all m
-eigenvalues from SLEPc's LAPACK solver
-(:func:`~admm_dolfinx.pencil_extremes.extremes_from_schur`). r* is exact, and the
+gives the dense Schur complement S_C, from which the whole pencil follows: its ends
+with SLEPc on the dense m × m compliance
+(:func:`~admm_dolfinx.dense_pencil.extremes_from_schur`). r* is exact, and the
 ADMM then solves with the same factorisation, so r* costs only the dense eigenvalue
 problem beyond it.
 
@@ -59,10 +59,10 @@ from admm_dolfinx.contact_pencil import (
     largest_eigenvalue,
     projected_stiffness,
 )
+from admm_dolfinx.dense_pencil import extremes_from_schur
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.pencil_extremes import (
     NeedsFactorisation,
-    extremes_from_schur,
     lambda_max_factorised,
     lambda_max_multigrid,
     lambda_min_from_layers,

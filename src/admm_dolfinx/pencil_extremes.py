@@ -45,7 +45,6 @@ from typing import Any
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
-from slepc4py import SLEPc
 
 from admm_dolfinx.contact_pencil import (
     ComplianceOperator,
@@ -68,8 +67,6 @@ from admm_dolfinx.preconditioned_eigen import (
 __all__ = [
     "NeedsFactorisation",
     "affine_pressure_loads",
-    "compliance_matrix",
-    "extremes_from_schur",
     "lambda_max_factorised",
     "lambda_max_multigrid",
     "lambda_min_from_layers",
@@ -315,93 +312,3 @@ def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
         time_multigrid_setup=counts.get("multigrid_setup", 0.0),
     )
     return lambda_max, info
-
-
-def _dense_symmetric_eigenvalues(matrix: np.ndarray, prefix: str) -> np.ndarray:
-    """All eigenvalues of a small dense symmetric matrix with SLEPc (LAPACK), ascending.
-
-    One process (``PETSc.COMM_SELF``); the matrix is m × m, m the contact nodes.
-    """
-    n = matrix.shape[0]
-    mat = PETSc.Mat().createDense((n, n), array=np.asfortranarray(matrix), comm=PETSc.COMM_SELF)
-    eps = SLEPc.EPS().create(comm=PETSc.COMM_SELF)
-    try:
-        eps.setOptionsPrefix(prefix)
-        eps.setOperators(mat)
-        eps.setProblemType(SLEPc.EPS.ProblemType.HEP)
-        eps.setType(SLEPc.EPS.Type.LAPACK)
-        eps.setDimensions(nev=n)
-        eps.solve()
-        count = eps.getConverged()
-        if count < n:  # pragma: no cover - LAPACK's dense solver returns all of them
-            raise RuntimeError(f"SLEPc returned {count} of the {n} contact-pencil eigenvalues.")
-        return np.sort([eps.getEigenvalue(i).real for i in range(n)])
-    finally:
-        eps.destroy()
-        mat.destroy()
-
-
-def compliance_matrix(
-    schur: np.ndarray, k_cc: np.ndarray, weights: np.ndarray, r: float
-) -> np.ndarray:
-    """T = Wᵀ (S_C + r K_CC)⁻¹ W, the m × m compliance of Γ_C at penalty r; dense.
-
-    (M^{½} N (A + rK)⁻¹ Nᵀ M^{½}, read off the condensed stiffness.) Its eigenvalues
-    are θ = λ / (1 + rλ) for the eigenvalues λ of the contact pencil.
-
-    Args:
-        schur: S_C, symmetric c × c.
-        k_cc: K = NᵀMN restricted to C × C.
-        weights: W = Nᵀ M^{½} on C, c × m.
-        r: Penalty (> 0).
-
-    Raises:
-        RuntimeError: If S_C + r K_CC is not positive definite.
-    """
-    try:
-        lower = np.linalg.cholesky(schur + r * k_cc)
-    except np.linalg.LinAlgError as error:
-        raise RuntimeError(
-            "The Schur complement of A onto the contact dofs plus r NᵀMN is not "
-            "positive definite: the body has a motion that neither the Dirichlet "
-            "conditions nor Γ_C restrain."
-        ) from error
-    half = np.linalg.solve(lower, weights)  # L⁻¹ W, so that T = (L⁻¹W)ᵀ(L⁻¹W)
-    return half.T @ half
-
-
-def extremes_from_schur(
-    schur: np.ndarray, k_cc: np.ndarray, weights: np.ndarray, prefix: str = "pencil_dense_"
-) -> tuple[float, float, int]:
-    """λ_min, λ_max and the rigid motions seen by Γ_C, densely from S_C; exact.
-
-    With W = Nᵀ M^{½} on C, the pencil's eigenvalues are θ = λ / (1 + r_a λ) of the
-    m × m compliance matrix T = Wᵀ (S_C + r_a K_CC)⁻¹ W (the dense form of
-    :class:`~admm_dolfinx.contact_pencil.ComplianceOperator`), all of which SLEPc's
-    LAPACK solver returns; rigid motions give θ = 1/r_a. The scale tr S_C / tr K_CC is
-    about 1/λ_min (the diagonal ratio of the shortest-wave modes), so
-    r_a = 1e-3 tr S_C / tr K_CC puts r_a λ_max near κ/1000: then λ = θ/(1 − r_a θ)
-    loses at most about κ²/1000 ulps at λ_max and λ_min keeps full relative accuracy,
-    while the rigid motions, at 1 − r_a θ ≈ 1e-16, stay far below _RIGID_TOL for any
-    κ = λ_max/λ_min below 1e8.
-
-    Args:
-        schur: S_C, symmetric c × c (singular for a floating body).
-        k_cc: K = NᵀMN restricted to C × C.
-        weights: W, c × m.
-        prefix: Options prefix of the SLEPc solver (type LAPACK) of the m × m problem.
-
-    Returns:
-        λ_min, λ_max (over the finite eigenvalues) and the number of rigid motions.
-
-    Raises:
-        RuntimeError: If S_C + r_a K_CC is not positive definite (A_II singular: a
-            motion of the body that Γ_C does not see), or every mode is rigid.
-    """
-    r_a = 1e-3 * float(np.trace(schur) / np.trace(k_cc))
-    theta = _dense_symmetric_eigenvalues(compliance_matrix(schur, k_cc, weights, r_a), prefix)
-    finite = theta[1.0 - r_a * theta > _RIGID_TOL]
-    if finite.size == 0:
-        raise RuntimeError("Every contact mode is a rigid motion of the body.")
-    lam = finite / (1.0 - r_a * finite)
-    return float(lam[0]), float(lam[-1]), int(theta.size - finite.size)

@@ -48,7 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx.pencil_extremes import compliance_matrix
+from admm_dolfinx.dense_pencil import compliance_matrix
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = ["MAX_ROUNDS", "ActiveSetPolish"]
