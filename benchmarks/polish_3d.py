@@ -1,0 +1,135 @@
+"""What active-set polishing costs and saves in 3D: Example 3, default against polish=True.
+
+In 2D the solver polishes by default; in 3D it does not, because polishing needs the
+dense Schur complement S_C of A onto the contact *surface*, whose factorisation costs
+more than A + r*NᵀMN's. For each mesh, in one run:
+
+* the 3D default: r* by the iterative estimate, one factorisation of A + r*NᵀMN,
+  accelerated ADMM to the default tolerance (1e-6);
+* ``polish=True``: one factorisation of A condensed onto Γ_C, which gives r* densely,
+  the compliance G and every step-1 solve; ADMM with active-set polishing;
+* a plain linear-elastic solve of A + r*NᵀMN (factorisation + 1 solve).
+
+Time = r* + factorisation + set-up at r + iterations (assembly and the final KKT
+check excluded), with the largest relative KKT residual of each result and the
+relative difference of the two displacements. Under MPI ``polish=True`` factorises
+twice, since PETSc solves with a Schur complement on one process only: A + r*NᵀMN for
+the ADMM, and the condensed factorisation for r* and G (counted in r*). Each pair's
+times vary by 10-20 % between runs here (``--repeat`` keeps the fastest of several).
+
+    python benchmarks/polish_3d.py              # levels 0-3 and the 257k-dof mesh
+    python benchmarks/polish_3d.py --quick      # levels 0-1
+    python benchmarks/polish_3d.py --repeat 2   # best of two runs of each
+    python benchmarks/polish_3d.py --only "level 3"   # both level-3 meshes
+
+Writes out_benchmarks/polish_3d.csv.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+from tables import print_and_save
+from timing import timed
+
+from admm_dolfinx import ADMMSolver
+from admm_dolfinx.operators import PenalisedOperator
+from admm_dolfinx.scenes import example3
+
+MESHES = [
+    ("level 0", {"level": 0}),
+    ("level 1", {"level": 1}),
+    ("level 2", {"level": 2}),
+    ("level 3", {"level": 3}),
+    ("level 3, h0=0.24", {"level": 3, "h_bottom": 0.24, "h_top": 0.24}),
+]
+
+
+def contact_solve(problem, **options):
+    """(seconds without assembly and KKT, result) of one solve with these options."""
+    with ADMMSolver(problem, **options) as solver:
+        result = solver.solve()
+    t = result.timings
+    seconds = t["penalty"] + t["operator"] + t["factorization"] + t["iterations"]
+    return MPI.COMM_WORLD.allreduce(seconds, op=MPI.MAX), result
+
+
+def plain_solve(problem, r):
+    """Factorise A + rNᵀMN and solve once (the plain linear-elastic reference)."""
+    operator = PenalisedOperator(problem, "plain_")
+    b, x = problem.A.createVecs()
+    try:
+        b.set(1.0)
+        operator.set_penalty(r)
+        operator.solve(b, x)
+    finally:
+        for obj in (operator, b, x):
+            obj.destroy()
+
+
+def relative_difference(problem, u, v):
+    """‖u − v‖ / ‖v‖ over the owned dofs of all ranks."""
+    owned = problem.V.dofmap.index_map.size_local * problem.V.dofmap.index_map_bs
+    local = np.array([np.sum((u[:owned] - v[:owned]) ** 2), np.sum(v[:owned] ** 2)])
+    total = problem.comm.allreduce(local, op=MPI.SUM)
+    return float(np.sqrt(total[0] / total[1]))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="levels 0-1 only")
+    parser.add_argument("--repeat", type=int, default=1, help="runs of each; the fastest")
+    parser.add_argument("--only", help="the meshes whose name contains this")
+    parser.add_argument("--out", default="out_benchmarks")
+    args = parser.parse_args()
+    comm = MPI.COMM_WORLD
+    rows = []
+    for name, kwargs in MESHES[:2] if args.quick else MESHES:
+        if args.only and args.only not in name:
+            continue
+        problem = example3(comm, **kwargs).problem()
+        best = {}
+        for _ in range(max(1, args.repeat)):
+            for variant, options in (("default", {}), ("polish", {"polish": True})):
+                seconds, result = contact_solve(problem, **options)
+                if variant not in best or seconds < best[variant][0]:
+                    best[variant] = (seconds, result)
+        (t_def, default), (t_pol, polished) = best["default"], best["polish"]
+        r = default.penalty
+        t_plain = min(
+            timed(lambda p=problem, r=r: plain_solve(p, r))[0] for _ in range(max(1, args.repeat))
+        )
+        row = {
+            "mesh": name,
+            "dofs": problem.A.getSize()[0],
+            "m": problem.num_contact_nodes,
+            "plain [s]": f"{t_plain:.3g}",
+        }
+        for label, seconds, result in (("default", t_def, default), ("polish", t_pol, polished)):
+            t = result.timings
+            row |= {
+                f"{label}: its": result.iterations,
+                f"{label}: r* [s]": f"{t['penalty']:.3g}",
+                f"{label}: factorisation [s]": f"{t['factorization']:.3g}",
+                f"{label}: set-up + iterations [s]": f"{t['operator'] + t['iterations']:.3g}",
+                f"{label}: total [s]": f"{seconds:.3g}",
+                f"{label}: / plain": f"{seconds / t_plain:.2f}",
+                f"{label}: KKT": f"{result.kkt.max():.1e}",
+            }
+        row["polish / default"] = f"{t_pol / t_def:.2f}"
+        row["‖u_d − u_p‖/‖u_p‖"] = (
+            f"{relative_difference(problem, default.u.x.array, polished.u.x.array):.1e}"
+        )
+        rows.append(row)
+        if comm.rank == 0:
+            print(f"{name}: default {t_def:.3g} s, polish {t_pol:.3g} s", flush=True)
+        problem.destroy()
+    if comm.rank == 0:
+        print_and_save(rows, Path(args.out) / "polish_3d.csv")
+
+
+if __name__ == "__main__":
+    main()
