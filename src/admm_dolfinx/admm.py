@@ -246,8 +246,11 @@ class ADMMSolver:
             with ``penalty="auto"`` in 2D with a MUMPS factorisation (on any number of
             processes: under MPI a private condensed factorisation serves r* and the
             polisher), or with ``condensed=True``; ``True``: always (computing S_C if
-            need be: in 3D it is dense on a surface, and costly); ``False``: never.
-            Paper mode never polishes.
+            need be: in 3D it is dense on a surface, which makes the factorisation
+            1.4–1.6× dearer: faster overall below about 2000 contact nodes on one
+            process, slower above and under MPI, where it is a second
+            factorisation; ``benchmarks/polish_3d.py``); ``False``: never. Paper mode
+            never polishes.
 
     Raises:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
