@@ -24,7 +24,7 @@ import numpy as np
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
-__all__ = ["DENSE_ALL_EIGENVALUES", "compliance_matrix", "extremes_from_schur"]
+__all__ = ["DENSE_ALL_EIGENVALUES", "RIGID_TOL", "compliance_matrix", "extremes_from_schur"]
 
 #: Up to this m the dense pencil's eigenvalues all come from SLEPc's LAPACK solver
 #: (under 0.1 s); above it Krylov–Schur computes the two ends.

@@ -57,6 +57,7 @@ from admm_dolfinx.contact_pencil import (
     mean_diagonal,
     projected_stiffness,
 )
+from admm_dolfinx.dense_pencil import RIGID_TOL
 from admm_dolfinx.preconditioned_eigen import (
     BLOCK_SIZE,
     gram_matrix,
@@ -77,8 +78,6 @@ __all__ = [
 _KAPPA_GUESS = 1e4
 #: Accept r_a when r_a λ_max ≤ this (then λ = θ/(1 − r_aθ) amplifies errors ≤ 5x).
 _MAX_RA_LAMBDA = 4.0
-#: θ with 1 − r_a θ below this is a rigid motion (λ = ∞).
-_RIGID_TOL = 1e-6
 #: Rᵀ A R (rigid body modes R, orthonormal) below this × max diag(A): a floating body.
 _FLOATING_TOL = 1e-10
 #: A trial pressure whose part M-orthogonal to the previous ones is below this fraction
@@ -155,7 +154,7 @@ def _lambda_max_loop(lambda_min: float, top_eigenpair) -> tuple[float, dict[str,
         for _attempt in range(8):
             theta, vec, its = top_eigenpair(r_a, rigid)
             x = r_a * theta
-            if x > 1.0 - _RIGID_TOL:  # a rigid motion seen by Γ_C: deflate it
+            if x > 1.0 - RIGID_TOL:  # a rigid motion seen by Γ_C: deflate it
                 rigid.append(vec)
                 continue
             vec.destroy()
