@@ -8,7 +8,10 @@ more than A + r*NᵀMN's. For each mesh, in one run:
   accelerated ADMM to the default tolerance (1e-6);
 * ``polish=True``: one factorisation of A condensed onto Γ_C, which gives r* densely,
   the compliance G and every step-1 solve; ADMM with active-set polishing;
-* a plain linear-elastic solve of A + r*NᵀMN (factorisation + 1 solve).
+* a plain linear-elastic solve of A + r*NᵀMN (factorisation + 1 solve);
+* on one process, the other exact route to the dense compliance: the C × C block of
+  (A + r*NᵀMN)⁻¹ read off the plain factors by MUMPS's selected inverse entries,
+  next to what the condensed factorisation costs beyond the plain one.
 
 Time = r* + factorisation + set-up at r + iterations (assembly and the final KKT
 check excluded), with the largest relative KKT residual of each result and the
@@ -28,14 +31,18 @@ Writes out_benchmarks/polish_3d.csv.
 from __future__ import annotations
 
 import argparse
+import ctypes
+import time
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
+from petsc4py import PETSc
 from tables import print_and_save
 from timing import timed
 
 from admm_dolfinx import ADMMSolver
+from admm_dolfinx.condensed import ContactSupport
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.scenes import example3
 
@@ -57,17 +64,64 @@ def contact_solve(problem, **options):
     return MPI.COMM_WORLD.allreduce(seconds, op=MPI.MAX), result
 
 
-def plain_solve(problem, r):
-    """Factorise A + rNᵀMN and solve once (the plain linear-elastic reference)."""
+def plain_solve(problem, r, inverse_entries=False):
+    """Factorise A + rNᵀMN and solve once (the plain linear-elastic reference).
+
+    Returns the seconds of the contact block by inverse entries (or None), which are
+    not part of the plain solve: see :func:`contact_block_of_inverse`.
+    """
     operator = PenalisedOperator(problem, "plain_")
     b, x = problem.A.createVecs()
     try:
         b.set(1.0)
         operator.set_penalty(r)
         operator.solve(b, x)
+        if not inverse_entries:
+            return None
+        return contact_block_of_inverse(problem, operator, b, x)
     finally:
         for obj in (operator, b, x):
             obj.destroy()
+
+
+def contact_block_of_inverse(problem, operator, b, x):
+    """Seconds to read the C × C block of (A + rNᵀMN)⁻¹ off the plain factors.
+
+    The other exact route to the dense compliance that polishing needs: MUMPS's
+    selected entries of the inverse (ICNTL(30), ``MatMumpsGetInverseTranspose``, which
+    petsc4py does not wrap), with the factorisation the ADMM already has. Checked
+    against one solve; one process (the requested pattern is a sequential matrix).
+    """
+    support = ContactSupport.build(problem)
+    dofs, n, c = support.dofs, problem.A.getSize()[0], support.size
+    counts = np.zeros(n, dtype=PETSc.IntType)
+    counts[dofs] = c
+    indptr = np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType)
+    pattern = PETSc.Mat().createAIJ(
+        (n, n), csr=(indptr, np.tile(dofs, c), np.zeros(c * c)), comm=PETSc.COMM_SELF
+    )
+    factor = operator.ksp.getPC().getFactorMatrix()
+    lib = ctypes.CDLL(PETSc.__file__)  # dlsym searches its dependencies: libpetsc
+    lib.MatMumpsGetInverseTranspose.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    try:
+        t0 = time.perf_counter()
+        if lib.MatMumpsGetInverseTranspose(factor.handle, pattern.handle) != 0:
+            raise RuntimeError("MatMumpsGetInverseTranspose failed.")
+        seconds = time.perf_counter() - t0
+        factor.setMumpsIcntl(30, 0)  # back to ordinary solves
+        factor.setMumpsIcntl(20, 0)
+        column = c // 2
+        b.set(0.0)
+        b.setValue(dofs[column], 1.0)
+        b.assemble()
+        operator.solve(b, x)
+        entries = pattern.getValues(dofs, [dofs[column]]).ravel()
+        error = np.abs(x.getArray()[dofs] - entries).max() / np.abs(entries).max()
+        if error > 1e-10:
+            raise RuntimeError(f"inverse entries differ from a solve by {error:.1e}")
+        return seconds
+    finally:
+        pattern.destroy()
 
 
 def relative_difference(problem, u, v):
@@ -102,6 +156,7 @@ def main():
         t_plain = min(
             timed(lambda p=problem, r=r: plain_solve(p, r))[0] for _ in range(max(1, args.repeat))
         )
+        t_inverse = plain_solve(problem, r, inverse_entries=True) if comm.size == 1 else None
         row = {
             "mesh": name,
             "dofs": problem.A.getSize()[0],
@@ -120,6 +175,11 @@ def main():
                 f"{label}: KKT": f"{result.kkt.max():.1e}",
             }
         row["polish / default"] = f"{t_pol / t_def:.2f}"
+        extra = polished.timings["factorization"] - default.timings["factorization"]
+        row["condensed − plain factorisation [s]"] = f"{extra:.3g}" if comm.size == 1 else "–"
+        row["C × C of (A + r*K)⁻¹ by inverse entries [s]"] = (
+            f"{t_inverse:.3g}" if t_inverse is not None else "–"
+        )
         row["‖u_d − u_p‖/‖u_p‖"] = (
             f"{relative_difference(problem, default.u.x.array, polished.u.x.array):.1e}"
         )
