@@ -62,14 +62,21 @@ def test_rotated_reference_agrees_with_algorithm5():
 
 @serial_only
 @pytest.mark.parametrize("level", [0, 1])
-def test_floating_curved_body(level):
+def test_floating_curved_body(level, monkeypatch):
     """Hertz quarter cylinder: curved Γ_C and a free vertical translation (A singular)."""
+    from admm_dolfinx import dense_pencil
+
     problem = example2(level=level).problem()
     lam = rotated_pencil_eigenvalues(problem)
     assert np.isinf(lam[-1]) and np.isfinite(lam[-2])  # exactly one rigid mode seen by Γ_C
     dense = estimate_penalty(problem)
     assert dense.details["method"] == "dense" and dense.details["rigid_modes"] == 1
     _compare(dense, lam[0], lam[-2], 1e-9)
+    with monkeypatch.context() as patch:  # the Krylov–Schur ends, rigid mode deflated
+        patch.setattr(dense_pencil, "DENSE_ALL_EIGENVALUES", 8)
+        krylov = estimate_penalty(problem)
+    assert krylov.details["rigid_modes"] == 1
+    _compare(krylov, lam[0], lam[-2], 1e-9)
     est = estimate_penalty(problem, tol=TIGHT, method="iterative")
     assert est.details["rigid_modes"] == 1
     _compare(est, lam[0], lam[-2], 1e-6)
@@ -145,6 +152,24 @@ def test_parallel_dense_estimate_matches_serial(h):
     assert dense.lambda_min == pytest.approx(dense_serial.lambda_min, rel=1e-10)
     assert dense.lambda_max == pytest.approx(dense_serial.lambda_max, rel=1e-10)
     serial_problem.destroy()
+
+
+def test_dense_krylov_ends_match_all_eigenvalues_in_parallel(monkeypatch):
+    """The dense r* by Krylov–Schur (forced here at m = 128, where SLEPc's LAPACK
+    solver is the default) on all ranks against LAPACK on one rank: the same λ_min,
+    λ_max to round-off (the dense work is on rank 0; S_C comes from all ranks)."""
+    from admm_dolfinx import dense_pencil
+
+    serial_problem = example1(MPI.COMM_SELF, h=1 / 64).problem()
+    reference = estimate_penalty(serial_problem)
+    serial_problem.destroy()
+    problem = example1(h=1 / 64).problem()
+    assert problem.num_contact_nodes > 16
+    monkeypatch.setattr(dense_pencil, "DENSE_ALL_EIGENVALUES", 16)
+    krylov = estimate_penalty(problem)
+    assert krylov.details["method"] == "dense" and krylov.details["rigid_modes"] == 0
+    assert krylov.lambda_min == pytest.approx(reference.lambda_min, rel=1e-10)
+    assert krylov.lambda_max == pytest.approx(reference.lambda_max, rel=1e-10)
 
 
 def test_parallel_estimate_matches_serial():
