@@ -41,6 +41,11 @@ parser.add_argument(
 )
 parser.add_argument("--rtol", type=float, default=None, help="tolerance (default: the mode's)")
 parser.add_argument(
+    "--polish",
+    action="store_true",
+    help="active-set polishing (off by default in 3D): exact, and faster on small meshes",
+)
+parser.add_argument(
     "--samples",
     type=int,
     default=0,
@@ -70,9 +75,21 @@ say(
     f"{problem.num_contact_nodes} contact nodes, {comm.size} process(es)"
 )
 
+# In 3D the solver does not polish by default: polishing needs the dense Schur
+# complement of A onto the contact *surface*, which makes the factorisation 1.4-1.6×
+# dearer. On one process that pays on small meshes (level 2: 1.0 s against 2.2 s,
+# exact, in 2 iterations instead of 21), breaks even at level 3 and loses beyond, and
+# under MPI it is a second factorisation (`benchmarks/polish_3d.py`). `--polish`
+# asks for it.
+
 penalty = args.penalty if args.penalty == "auto" else float(args.penalty)
 with admm_dolfinx.ADMMSolver(
-    problem, penalty=penalty, mode=args.mode, rtol=args.rtol, petsc_options_prefix="block_"
+    problem,
+    penalty=penalty,
+    mode=args.mode,
+    rtol=args.rtol,
+    petsc_options_prefix="block_",
+    polish=True if args.polish else None,
 ) as solver:
     result = solver.solve()
 say(result.summary())

@@ -16,18 +16,19 @@ HERE = Path(__file__).resolve().parent
 MPIEXEC = os.environ.get("MPIEXEC") or str(Path(sys.executable).parent / "mpiexec")
 TIMEOUT = 600  # seconds per demo run
 
-# demo script -> arguments for its smallest size
-DEMOS: dict[str, list[str]] = {
-    "example1.py": ["--h", "0.125", "--samples", "20"],
-    "hertz.py": ["--level", "0", "--samples", "20"],
-    "block_on_ball.py": ["--level", "0", "--samples", "10"],
-    "load_steps.py": ["--n", "16", "--steps", "3"],
-}
+# (demo script, arguments for its smallest size)
+DEMOS: list[tuple[str, list[str]]] = [
+    ("example1.py", ["--h", "0.125", "--samples", "20"]),
+    ("hertz.py", ["--level", "0", "--samples", "20"]),
+    ("block_on_ball.py", ["--level", "0", "--samples", "10"]),
+    ("block_on_ball.py", ["--level", "0", "--polish"]),
+    ("load_steps.py", ["--n", "16", "--steps", "3"]),
+]
 
 
 def main() -> int:
     failures = []
-    for script, extra in DEMOS.items():
+    for script, extra in DEMOS:
         for nproc in (1, 2):
             with tempfile.TemporaryDirectory() as tmp:
                 # -m mpi4py: an exception on one rank aborts all instead of hanging
@@ -46,10 +47,10 @@ def main() -> int:
                 try:
                     proc = subprocess.run(cmd, check=False, timeout=TIMEOUT)
                 except subprocess.TimeoutExpired:
-                    failures.append(f"{script} (np={nproc}, timed out after {TIMEOUT} s)")
+                    failures.append(f"{script} {extra} (np={nproc}, timed out after {TIMEOUT} s)")
                     continue
                 if proc.returncode != 0:
-                    failures.append(f"{script} (np={nproc})")
+                    failures.append(f"{script} {extra} (np={nproc})")
     if failures:
         print("demo failures: " + ", ".join(failures))
         return 1
