@@ -321,3 +321,20 @@ def test_dense_krylov_ends_against_eigvalsh(rigid, monkeypatch):
     assert dense_pencil.extremes_from_schur(schur, k_cc, weights, "u_") == pytest.approx(
         (lam_min, lam_max, rigid), rel=1e-9
     )
+
+
+def test_dense_slepc_failure_is_a_clear_error_on_every_rank(monkeypatch):
+    """A SLEPc failure on rank 0 (here a bad option under the dense solver's prefix)
+    is a RuntimeError on every rank that names the prefix, not a hang."""
+    from admm_dolfinx import dense_pencil
+
+    problem = example1(h=1 / 32).problem()
+    monkeypatch.setattr(dense_pencil, "DENSE_ALL_EIGENVALUES", 16)
+    options = PETSc.Options()
+    options["rstar_dense_max_eps_type"] = "no_such_solver"
+    try:
+        with pytest.raises(RuntimeError, match=r"SLEPc failed.*rstar_dense_"):
+            estimate_penalty(problem, petsc_options_prefix="rstar_")
+    finally:
+        options.delValue("rstar_dense_max_eps_type")
+    assert estimate_penalty(problem, petsc_options_prefix="rstar_").details["method"] == "dense"

@@ -88,20 +88,28 @@ def extremes_from_schur(
 
     Raises:
         RuntimeError: If S_C + r_a K_CC is not positive definite (A_II singular: a
-            motion of the body that Γ_C does not see), or every mode is rigid.
+            motion of the body that Γ_C does not see), every mode is rigid, or SLEPc
+            fails.
     """
     r_a = 1e-3 * float(np.trace(schur) / np.trace(k_cc))
     compliance = compliance_matrix(schur, k_cc, weights, r_a)
     rigid_at = 1.0 / r_a
-    if compliance.shape[0] <= DENSE_ALL_EIGENVALUES:
-        theta = _all_eigenvalues(compliance, prefix)
-        finite = theta[1.0 - r_a * theta > RIGID_TOL]
-        if finite.size == 0:
-            raise RuntimeError("Every contact mode is a rigid motion of the body.")
-        theta_min, theta_max, rigid = finite[0], finite[-1], theta.size - finite.size
-    else:
-        theta_max, rigid = _largest_finite(compliance, rigid_at, prefix)
-        theta_min = _smallest(compliance, prefix)
+    try:  # a RuntimeError only: the caller turns it into the same error on every rank
+        if compliance.shape[0] <= DENSE_ALL_EIGENVALUES:
+            theta = _all_eigenvalues(compliance, prefix)
+            finite = theta[1.0 - r_a * theta > RIGID_TOL]
+            if finite.size == 0:
+                raise RuntimeError("Every contact mode is a rigid motion of the body.")
+            theta_min, theta_max, rigid = finite[0], finite[-1], theta.size - finite.size
+        else:
+            theta_max, rigid = _largest_finite(compliance, rigid_at, prefix)
+            theta_min = _smallest(compliance, prefix)
+    except (PETSc.Error, SystemError) as error:  # petsc4py reports some as SystemError
+        raise RuntimeError(
+            f"SLEPc failed on the dense contact pencil (m = {compliance.shape[0]}): {error}. "
+            f"Check the options under the prefix {prefix!r}, or use "
+            "estimate_penalty(..., method='iterative')."
+        ) from error
     lam_min = theta_min / (1.0 - r_a * theta_min)
     lam_max = theta_max / (1.0 - r_a * theta_max)
     return float(lam_min), float(lam_max), int(rigid)

@@ -257,6 +257,8 @@ def _dense_extremes(problem, condensed, prefix, petsc_options):
                     )
             except RuntimeError as error:
                 outcome = str(error)
+            except Exception as error:  # rank 0 alone must not raise: the others wait
+                outcome = f"The dense r* failed on rank 0: {type(error).__name__}: {error}"
         else:
             outcome = ""
         outcome = problem.comm.bcast(outcome, root=0)
