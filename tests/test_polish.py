@@ -113,6 +113,33 @@ def test_failed_attempts_leave_the_iteration_converging(monkeypatch):
     assert rel_diff(_global(problem, result.u.x.array), _global(problem, default.u.x.array)) <= 1e-6
 
 
+def test_an_error_in_the_dense_work_switches_polishing_off_on_every_rank(monkeypatch, caplog):
+    """The dense work runs on rank 0 alone: an exception there (here planted in the
+    compliance, then in an attempt) is a warning and an unpolished solve, on every
+    rank alike, never a rank that raises while the others wait."""
+    problem = example1(h=1 / 32).problem()
+    with ADMMSolver(problem, polish=False) as solver:
+        plain = solver.solve()
+
+    def fail(*args, **kwargs):
+        raise MemoryError("planted")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(polish_module, "compliance_matrix", fail)
+        with ADMMSolver(problem) as solver, caplog.at_level("WARNING"):
+            result = solver.solve()
+    assert not result.polished and result.extra["polish"]["attempts"] == 0
+    assert result.iterations == plain.iterations  # the plain iteration, untouched
+    with monkeypatch.context() as patch:
+        patch.setattr(polish_module.ActiveSetPolish, "_solve", fail)
+        with ADMMSolver(problem) as solver, caplog.at_level("WARNING"):
+            result = solver.solve()
+    assert not result.polished and result.extra["polish"]["attempts"] > 0
+    assert result.converged and result.kkt.max() <= 1e-6
+    if problem.comm.rank == 0:
+        assert "MemoryError: planted" in caplog.text
+
+
 def test_polish_options():
     problem = example1(h=1 / 8).problem()
     with ADMMSolver(problem, mode="paper") as solver:

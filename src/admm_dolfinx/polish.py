@@ -126,8 +126,13 @@ class ActiveSetPolish:
             try:  # never raise on rank 0 alone: the other ranks would wait
                 self._compliance = compliance_matrix(self._schur, self._k_cc, self._weights, r)
                 self._shifted = np.eye(self._compliance.shape[0]) - r * self._compliance
-            except RuntimeError as error:
-                logger.warning("Active-set polishing is off for this penalty: %s", error)
+            except Exception as error:  # polishing is an option: the ADMM goes on without
+                self._compliance = self._shifted = None
+                logger.warning(
+                    "Active-set polishing is off for this penalty: %s: %s",
+                    type(error).__name__,
+                    error,
+                )
         self.setup_time = self.comm.bcast(time.perf_counter() - t0, root=0)
 
     def reset(self) -> None:
@@ -166,7 +171,11 @@ class ActiveSetPolish:
         if self.comm.rank == 0:
             skip = self.time > budget
             if not skip:
-                outcome, rounds = self._solve(data[0], data[1], data[2] > 0.5)
+                try:  # never raise on rank 0 alone: the other ranks would wait
+                    outcome, rounds = self._solve(data[0], data[1], data[2] > 0.5)
+                except Exception as error:  # an attempt that fails is one not taken
+                    logger.warning("Polishing attempt failed: %s: %s", type(error).__name__, error)
+                    outcome, rounds = None, 1
         rounds, found, skip = self.comm.bcast((rounds, outcome is not None, skip), root=0)
         self.attempts += int(rounds > 0)
         self.rounds += rounds
