@@ -6,7 +6,7 @@ import pytest
 from mpi4py import MPI
 
 from admm_dolfinx.cli import main
-from admm_dolfinx.output import atomic_directory
+from admm_dolfinx.output import atomic_directory, write_json
 
 
 def _shared_tmp(tmp_path_factory, name):
@@ -70,3 +70,21 @@ def test_help_lists_commands(capsys):
         main(["--help"])
     out = capsys.readouterr().out
     assert "run" in out and "reproduce" in out
+
+
+def test_unwritable_output_is_a_clear_error_on_every_rank(tmp_path_factory):
+    """An output path that rank 0 cannot create (here: below a regular file) raises
+    the same OSError on every rank, naming the path, instead of leaving the other
+    ranks waiting; nothing is written."""
+    tmp = _shared_tmp(tmp_path_factory, "unwritable")
+    blocker = tmp / "a_file"
+    if MPI.COMM_WORLD.rank == 0:
+        blocker.write_text("not a folder")
+    MPI.COMM_WORLD.Barrier()
+    with pytest.raises(OSError, match=r"a_file/out.*writable"):
+        with atomic_directory(MPI.COMM_WORLD, blocker / "out"):
+            pass
+    with pytest.raises(OSError, match=r"a_file/s\.json.*writable"):
+        write_json(MPI.COMM_WORLD, blocker / "s.json", {"a": 1})
+    MPI.COMM_WORLD.Barrier()
+    assert sorted(p.name for p in tmp.iterdir()) == ["a_file"]

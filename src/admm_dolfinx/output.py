@@ -12,7 +12,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +20,32 @@ from dolfinx import fem, io
 from mpi4py import MPI
 
 __all__ = ["atomic_directory", "write_json", "write_xdmf"]
+
+
+def _on_rank0(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
+    """``fn()`` on rank 0, its failure raised on every rank; collective.
+
+    File-system work is done by rank 0 alone; if it fails there (an unwritable or
+    invalid path), the other ranks must not wait for it at the next collective call.
+
+    Returns:
+        ``fn()``'s value, broadcast.
+    """
+    value, failure = None, None
+    if comm.rank == 0:
+        try:
+            value = fn()
+        except Exception as error:
+            failure = error
+    message = comm.bcast(
+        None if failure is None else f"{type(failure).__name__}: {failure}", root=0
+    )
+    if message is not None:
+        raise OSError(
+            f"Cannot write the output {str(target)!r} ({message}). Choose a writable "
+            "location (for instance with --out)."
+        ) from failure
+    return comm.bcast(value, root=0)
 
 
 @contextlib.contextmanager
@@ -34,11 +60,12 @@ def atomic_directory(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
         The temporary folder to write into.
     """
     final = Path(path).resolve()
-    tmp = None
-    if comm.rank == 0:
+
+    def create() -> str:
         final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent)
-    tmp = Path(comm.bcast(tmp, root=0))
+        return tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent)
+
+    tmp = Path(_on_rank0(comm, final, create))
     ok = False
     try:
         yield tmp
@@ -46,13 +73,19 @@ def atomic_directory(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
     finally:
         ok = comm.allreduce(ok, op=MPI.LAND)
         comm.Barrier()
-        if comm.rank == 0:
+
+        def publish() -> None:
             if ok:
                 if final.exists():
                     shutil.rmtree(final)
                 tmp.rename(final)
             else:
                 shutil.rmtree(tmp, ignore_errors=True)
+
+        if ok:
+            _on_rank0(comm, final, publish)
+        elif comm.rank == 0:  # the block's own error is being raised on every rank
+            publish()
         comm.Barrier()
 
 
@@ -64,8 +97,9 @@ def write_json(comm: MPI.Comm, path: str | os.PathLike, data: Mapping[str, Any])
         path: Output file.
         data: JSON-serialisable mapping.
     """
-    if comm.rank == 0:
-        target = Path(path)
+    target = Path(path)
+
+    def write() -> None:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
         try:
@@ -76,7 +110,8 @@ def write_json(comm: MPI.Comm, path: str | os.PathLike, data: Mapping[str, Any])
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-    comm.Barrier()
+
+    _on_rank0(comm, target, write)
 
 
 def write_xdmf(path: str | os.PathLike, functions: list[fem.Function]) -> None:
