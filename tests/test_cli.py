@@ -88,3 +88,20 @@ def test_unwritable_output_is_a_clear_error_on_every_rank(tmp_path_factory):
         write_json(MPI.COMM_WORLD, blocker / "s.json", {"a": 1})
     MPI.COMM_WORLD.Barrier()
     assert sorted(p.name for p in tmp.iterdir()) == ["a_file"]
+
+
+def test_atomic_directory_fails_on_every_rank_when_one_rank_fails(tmp_path_factory):
+    """A block that fails on one rank only: that rank raises its error, the others a
+    RuntimeError (so that none goes on to wait at a later collective call); nothing is
+    written."""
+    tmp = _shared_tmp(tmp_path_factory, "one_rank")
+    target = tmp / "result"
+    last = MPI.COMM_WORLD.size - 1
+    expected = ValueError if MPI.COMM_WORLD.rank == last else RuntimeError
+    with pytest.raises(expected), atomic_directory(MPI.COMM_WORLD, target) as folder:
+        (folder / f"part{MPI.COMM_WORLD.rank}.txt").write_text("whole")
+        if MPI.COMM_WORLD.rank == last:
+            raise ValueError("this rank's plot failed")
+    MPI.COMM_WORLD.Barrier()
+    assert not target.exists()
+    assert list(tmp.iterdir()) == []

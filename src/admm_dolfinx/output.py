@@ -84,9 +84,14 @@ def atomic_directory(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
 
         if ok:
             _on_rank0(comm, final, publish)
-        elif comm.rank == 0:  # the block's own error is being raised on every rank
+        elif comm.rank == 0:
             publish()
         comm.Barrier()
+    if not ok:  # reached by the ranks whose block succeeded while another's failed
+        raise RuntimeError(
+            f"The output {str(final)!r} was not written: another rank failed while "
+            "writing it (its error is reported there)."
+        )
 
 
 def write_json(comm: MPI.Comm, path: str | os.PathLike, data: Mapping[str, Any]) -> None:
