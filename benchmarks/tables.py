@@ -10,6 +10,8 @@ import csv
 from collections.abc import Sequence
 from pathlib import Path
 
+from admm_dolfinx.output import atomic_file
+
 
 def markdown_table(rows: Sequence[dict]) -> str:
     """The rows as a markdown table; columns are the union of keys, first seen first."""
@@ -29,10 +31,7 @@ def print_and_save(rows: Sequence[dict], path: Path) -> None:
     keys: list[str] = []
     for row in rows:
         keys += [k for k in row if k not in keys]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_file(path, newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=keys, restval="–")
         writer.writeheader()
         writer.writerows(rows)
-    tmp.replace(path)

@@ -105,3 +105,18 @@ def test_atomic_directory_fails_on_every_rank_when_one_rank_fails(tmp_path_facto
     MPI.COMM_WORLD.Barrier()
     assert not target.exists()
     assert list(tmp.iterdir()) == []
+
+
+def test_cli_unwritable_output_is_an_error_message(tmp_path_factory, capsys):
+    """The command line reports an unwritable --out as one line and exit status 1, on
+    every rank (no traceback, no rank left waiting)."""
+    tmp = _shared_tmp(tmp_path_factory, "cli_out")
+    blocker = tmp / "a_file"
+    if MPI.COMM_WORLD.rank == 0:
+        blocker.write_text("not a folder")
+    MPI.COMM_WORLD.Barrier()
+    status = main(["run", "example1", "--h", "0.25", "--json", str(blocker / "s.json")])
+    assert status == 1
+    if MPI.COMM_WORLD.rank == 0:
+        err = capsys.readouterr().err
+        assert "admm-dolfinx: error: Cannot write the output" in err and "a_file" in err

@@ -186,7 +186,14 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s"
     )
-    return args.func(args)
+    try:
+        return args.func(args)
+    except OSError as error:  # an output path: raised on every rank alike
+        if args.verbose:
+            raise
+        if MPI.COMM_WORLD.rank == 0:
+            print(f"admm-dolfinx: error: {error}", file=sys.stderr, flush=True)
+        return 1
 
 
 if __name__ == "__main__":

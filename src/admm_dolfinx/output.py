@@ -14,19 +14,31 @@ import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from dolfinx import fem, io
 from mpi4py import MPI
 
-__all__ = ["atomic_directory", "write_json", "write_xdmf"]
+__all__ = [
+    "atomic_directory",
+    "atomic_file",
+    "atomic_path",
+    "rank0_write",
+    "write_json",
+    "write_xdmf",
+]
 
 
-def _on_rank0(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
+def rank0_write(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
     """``fn()`` on rank 0, its failure raised on every rank; collective.
 
     File-system work is done by rank 0 alone; if it fails there (an unwritable or
     invalid path), the other ranks must not wait for it at the next collective call.
+
+    Args:
+        comm: Communicator.
+        target: The file or folder being written (named in the error).
+        fn: The writing, run on rank 0 only.
 
     Returns:
         ``fn()``'s value, broadcast.
@@ -65,7 +77,7 @@ def atomic_directory(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
         final.parent.mkdir(parents=True, exist_ok=True)
         return tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent)
 
-    tmp = Path(_on_rank0(comm, final, create))
+    tmp = Path(rank0_write(comm, final, create))
     ok = False
     try:
         yield tmp
@@ -83,7 +95,7 @@ def atomic_directory(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
                 shutil.rmtree(tmp, ignore_errors=True)
 
         if ok:
-            _on_rank0(comm, final, publish)
+            rank0_write(comm, final, publish)
         elif comm.rank == 0:
             publish()
         comm.Barrier()
@@ -105,18 +117,51 @@ def write_json(comm: MPI.Comm, path: str | os.PathLike, data: Mapping[str, Any])
     target = Path(path)
 
     def write() -> None:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-        try:
-            with os.fdopen(fd, "w") as fh:
-                json.dump(data, fh, indent=2, sort_keys=True)
-                fh.write("\n")
-            os.replace(tmp, target)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_file(target) as fh:
+            json.dump(data, fh, indent=2, sort_keys=True)
+            fh.write("\n")
 
-    _on_rank0(comm, target, write)
+    rank0_write(comm, target, write)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A temporary sibling of ``path`` that replaces it once the block has written it.
+
+    On an error the temporary file is removed and ``path`` is left as it was. The
+    suffix is kept (writers that infer the format from it still work). One process.
+
+    Args:
+        path: Final file (its folder is created if need be).
+
+    Yields:
+        The temporary file's path.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=target.suffix, dir=target.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike, newline: str | None = None) -> Iterator[IO[str]]:
+    """A text file that appears at ``path`` only once the block has written it whole.
+
+    Args:
+        path: Final file (see :func:`atomic_path`).
+        newline: Passed to :func:`open` (``""`` for the csv module).
+
+    Yields:
+        The open temporary file.
+    """
+    with atomic_path(path) as tmp, open(tmp, "w", newline=newline) as fh:
+        yield fh
 
 
 def write_xdmf(path: str | os.PathLike, functions: list[fem.Function]) -> None:

@@ -9,7 +9,6 @@ is needed to solve a problem: the solver never imports this module.
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,6 +17,7 @@ from dolfinx import fem, plot
 from mpi4py import MPI
 
 from admm_dolfinx.material import LinearElastic
+from admm_dolfinx.output import atomic_path
 
 __all__ = [
     "obstacle_surface",
@@ -28,16 +28,8 @@ __all__ = [
 
 
 def _atomic_png(path: Path, save) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        save(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp:
+        save(str(tmp))
 
 
 def _pyplot():

@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,6 +21,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 from admm_dolfinx.admm import ADMMSolver
+from admm_dolfinx.output import atomic_file, rank0_write
 from admm_dolfinx.scenes import example1, example2, example3
 from admm_dolfinx.sweep import paper_penalty_grid, sample_penalty
 
@@ -56,18 +55,11 @@ class Table:
         return "\n".join(lines)
 
     def write_csv(self, path: Path) -> None:
-        """Write the rows as CSV, atomically (temporary file + rename)."""
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", newline="") as fh:
-                writer = csv.DictWriter(fh, fieldnames=self.columns, extrasaction="ignore")
-                writer.writeheader()
-                writer.writerows(self.rows)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        """Write the rows as CSV, whole or not at all (one process)."""
+        with atomic_file(path, newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=self.columns, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(self.rows)
 
 
 def _fmt(value) -> str:
@@ -432,7 +424,8 @@ def run_table(
     table.notes.append(
         f"Regenerated in {time.perf_counter() - t0:.0f} s on {MPI.COMM_WORLD.size} process(es)."
     )
-    if MPI.COMM_WORLD.rank == 0:
+
+    def write() -> None:
         if sys.stderr.isatty():
             sys.stderr.write("\r\033[K")
         print(table.markdown() + "\n", flush=True)
@@ -448,5 +441,6 @@ def run_table(
                 comm=MPI.COMM_SELF,
             )
             print(f"wrote {Path(out) / table.figure}.png\n", flush=True)
-    MPI.COMM_WORLD.Barrier()
+
+    rank0_write(MPI.COMM_WORLD, Path(out), write)  # a failure raises on every rank
     return table
