@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 from mpi4py import MPI
 
@@ -120,3 +121,21 @@ def test_cli_unwritable_output_is_an_error_message(tmp_path_factory, capsys):
     if MPI.COMM_WORLD.rank == 0:
         err = capsys.readouterr().err
         assert "admm-dolfinx: error: Cannot write the output" in err and "a_file" in err
+
+
+def test_a_figure_that_fails_on_rank_0_fails_on_every_rank(tmp_path_factory, monkeypatch):
+    """Rank 0 draws alone: a renderer error there (planted) is raised on every rank by
+    the plot itself, before any rank moves on to another collective call."""
+    import admm_dolfinx.plotting as plotting
+
+    def broken():
+        raise ValueError("no renderer")
+
+    monkeypatch.setattr(plotting, "_pyplot", broken)
+    tmp = _shared_tmp(tmp_path_factory, "figure")
+    with pytest.raises(RuntimeError, match="failed on rank 0: ValueError: no renderer"):
+        plotting.plot_iterations_vs_penalty(
+            [("mesh", np.array([1.0, 2.0]), np.array([3, 4]))], tmp / "f.png"
+        )
+    MPI.COMM_WORLD.Barrier()
+    assert list(tmp.iterdir()) == []

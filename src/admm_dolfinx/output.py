@@ -32,8 +32,9 @@ __all__ = [
 def rank0_write(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
     """``fn()`` on rank 0, its failure raised on every rank; collective.
 
-    File-system work is done by rank 0 alone; if it fails there (an unwritable or
-    invalid path), the other ranks must not wait for it at the next collective call.
+    Files and figures are written by rank 0 alone; if that fails (an unwritable path,
+    a renderer error), the other ranks must not wait for it at the next collective
+    call.
 
     Args:
         comm: Communicator.
@@ -42,6 +43,10 @@ def rank0_write(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
 
     Returns:
         ``fn()``'s value, broadcast.
+
+    Raises:
+        OSError: If ``fn`` raised one (the path cannot be written), on every rank.
+        RuntimeError: If ``fn`` raised anything else, on every rank.
     """
     value, failure = None, None
     if comm.rank == 0:
@@ -49,13 +54,21 @@ def rank0_write(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
             value = fn()
         except Exception as error:
             failure = error
-    message = comm.bcast(
-        None if failure is None else f"{type(failure).__name__}: {failure}", root=0
+    report = comm.bcast(
+        None
+        if failure is None
+        else (type(failure).__name__, str(failure), isinstance(failure, OSError)),
+        root=0,
     )
-    if message is not None:
-        raise OSError(
-            f"Cannot write the output {str(target)!r} ({message}). Choose a writable "
-            "location (for instance with --out)."
+    if report is not None:
+        name, text, is_os_error = report
+        if is_os_error:
+            raise OSError(
+                f"Cannot write the output {str(target)!r} ({name}: {text}). Choose a "
+                "writable location (for instance with --out)."
+            ) from failure
+        raise RuntimeError(
+            f"Writing the output {str(target)!r} failed on rank 0: {name}: {text}"
         ) from failure
     return comm.bcast(value, root=0)
 

@@ -17,7 +17,7 @@ from dolfinx import fem, plot
 from mpi4py import MPI
 
 from admm_dolfinx.material import LinearElastic
-from admm_dolfinx.output import atomic_path
+from admm_dolfinx.output import atomic_path, rank0_write
 
 __all__ = [
     "obstacle_surface",
@@ -105,14 +105,17 @@ def plot_deformed_von_mises(
     vm = von_mises_cells(u, material)
     grid = _gathered_grid(u, vm)
     comm = u.function_space.mesh.comm
-    if comm.rank == 0:
+
+    def draw() -> float:
         import pyvista
+
+        magnification = scale
 
         size = float(np.linalg.norm(np.ptp(grid.points, axis=0)))
         umax = float(np.max(np.linalg.norm(grid.point_data["u"], axis=1)))
-        if scale is None:
-            scale = max(1.0, 0.05 * size / umax) if umax > 0 else 1.0
-        warped = grid.warp_by_vector("u", factor=scale)
+        if magnification is None:
+            magnification = max(1.0, 0.05 * size / umax) if umax > 0 else 1.0
+        warped = grid.warp_by_vector("u", factor=magnification)
         plotter = pyvista.Plotter(off_screen=True, window_size=(1200, 800))
         plotter.add_mesh(grid, style="wireframe", color="grey", opacity=0.25)
         plotter.add_mesh(
@@ -126,7 +129,7 @@ def plot_deformed_von_mises(
         )
         if obstacle_mesh is not None:
             plotter.add_mesh(obstacle_mesh, color="saddlebrown", opacity=0.3, line_width=3)
-        plotter.add_text(f"{title}  (displacement x{scale:.3g})", font_size=11)
+        plotter.add_text(f"{title}  (displacement x{magnification:.3g})", font_size=11)
         if np.allclose(grid.points[:, 2], 0.0):
             plotter.view_xy()
         else:  # from below, so that the contact face is in view
@@ -137,9 +140,13 @@ def plot_deformed_von_mises(
                 (0, 0, 1),
             ]
         plotter.show_axes()
-        _atomic_png(Path(path), lambda tmp: plotter.screenshot(tmp))
-        plotter.close()
-    return float(comm.bcast(scale, root=0))
+        try:
+            _atomic_png(Path(path), lambda tmp: plotter.screenshot(tmp))
+        finally:
+            plotter.close()
+        return magnification
+
+    return float(rank0_write(comm, Path(path), draw))
 
 
 def _gather_contact(problem, values):
@@ -174,11 +181,17 @@ def plot_contact_pressure(
         coordinate: Abscissa in 2D.
     """
     gathered = [(label, *_gather_contact(problem, lam)) for label, lam in pressures]
-    if problem.comm.rank != 0:
-        return
+    rank0_write(
+        problem.comm,
+        Path(path),
+        lambda: _draw_contact_pressure(gathered, problem.gdim, path, title, coordinate),
+    )
+
+
+def _draw_contact_pressure(gathered, gdim, path, title, coordinate) -> None:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    if problem.gdim == 2:
+    if gdim == 2:
         for label, xc, lam in gathered:
             if coordinate == "angle":
                 centre = np.array([0.0, np.max(xc[:, 1])])
@@ -205,8 +218,10 @@ def plot_contact_pressure(
         ax.set_ylabel("y")
     ax.set_title(title)
     fig.tight_layout()
-    _atomic_png(Path(path), lambda tmp: fig.savefig(tmp, dpi=130))
-    plt.close(fig)
+    try:
+        _atomic_png(Path(path), lambda tmp: fig.savefig(tmp, dpi=130))
+    finally:
+        plt.close(fig)
 
 
 def plot_iterations_vs_penalty(
@@ -217,17 +232,19 @@ def plot_iterations_vs_penalty(
     marks: Sequence[tuple[str, float, float]] = (),
     comm: MPI.Comm = MPI.COMM_WORLD,
 ) -> None:
-    """Iterations against r (paper Figs. 2 and 5); rank 0 draws.
+    """Iterations against r (paper Figs. 2 and 5); rank 0 draws; collective over ``comm``.
 
     Args:
         curves: ``(label, r, iterations)`` per mesh.
         path: PNG file.
         title: Figure title.
         marks: ``(label, r, iterations)`` points to mark, e.g. r* and r̄.
-        comm: Communicator (only rank 0 draws).
+        comm: Communicator (rank 0 draws; a failure there is raised on every rank).
     """
-    if comm.rank != 0:
-        return
+    rank0_write(comm, Path(path), lambda: _draw_iterations(curves, path, title, marks))
+
+
+def _draw_iterations(curves, path, title, marks) -> None:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for label, r, its in curves:
@@ -241,8 +258,10 @@ def plot_iterations_vs_penalty(
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    _atomic_png(Path(path), lambda tmp: fig.savefig(tmp, dpi=130))
-    plt.close(fig)
+    try:
+        _atomic_png(Path(path), lambda tmp: fig.savefig(tmp, dpi=130))
+    finally:
+        plt.close(fig)
 
 
 def obstacle_surface(obstacle, bounds: np.ndarray):
