@@ -163,3 +163,36 @@ def test_obstacle_dimension_mismatch(scene):
 def test_bad_poisson_ratio(nu):
     with pytest.raises(ValueError, match="Poisson ratio"):
         LinearElastic(1.0, nu)
+
+
+@pytest.mark.parametrize(
+    ("build", "kwargs", "message"),
+    [
+        ("example1", {"h": 0.0}, "h must be a positive finite length, got 0.0"),
+        ("example1", {"h": math.nan, "mesher": "builtin"}, "h must be a positive finite"),
+        ("example3", {"h_bottom": -1.0}, "h_bottom must be a positive finite length"),
+        ("example3", {"level": -1}, "level must be an integer ≥ 0"),
+        ("example2", {"level": 1.5}, "level must be an integer ≥ 0"),
+        ("hertz", {"level": -2}, "level must be an integer ≥ 0"),
+    ],
+)
+def test_bad_scene_parameters(build, kwargs, message):
+    """Mesh sizes and levels are checked before gmsh sees them (a negative graded
+    size aborted the process; a negative level of Example 3 was silently level 0)."""
+    from admm_dolfinx import scenes
+
+    with pytest.raises(ValueError, match=message):
+        getattr(scenes, build)(**kwargs)
+
+
+def test_a_gmsh_failure_on_rank_0_is_raised_on_every_rank():
+    """gmsh builds on rank 0 alone: its failure (a planted one) reaches every rank as
+    a RuntimeError naming the mesh, instead of leaving the others in the
+    distribution of a mesh that never comes."""
+    from admm_dolfinx.meshing import build_on_root
+
+    def build(gmsh):
+        raise ValueError("planted geometry error")
+
+    with pytest.raises(RuntimeError, match="'broken' mesh: ValueError: planted"):
+        build_on_root(MPI.COMM_WORLD, "broken", 2, build)

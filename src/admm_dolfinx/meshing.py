@@ -8,6 +8,7 @@ gmsh, so the solver never depends on it.
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -15,10 +16,14 @@ from dolfinx import mesh
 from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
+from admm_dolfinx._rank0 import run_on_rank0
+
 __all__ = [
     "MeshData",
     "box",
     "build_on_root",
+    "check_lengths",
+    "check_level",
     "global_bounds",
     "gmsh_session",
     "quarter_disc",
@@ -28,6 +33,29 @@ __all__ = [
 ]
 
 MeshData = gmshio.MeshData
+
+
+def check_lengths(**lengths: float | None) -> None:
+    """Raise a ValueError naming any length that is not a positive finite number.
+
+    ``None`` values (optional lengths) are skipped. gmsh itself would fail with a
+    less clear message, or, for a graded size field, abort the process.
+    """
+    for name, value in lengths.items():
+        if value is None:
+            continue
+        ok = isinstance(value, int | float | np.floating | np.integer) and not isinstance(
+            value, bool
+        )
+        if not (ok and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive finite length, got {value!r}.")
+
+
+def check_level(name: str, value: int) -> int:
+    """Return ``value`` if it is an integer ≥ 0, else raise a ValueError naming it."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise ValueError(f"{name} must be an integer ≥ 0 (0: the coarsest mesh), got {value!r}.")
+    return int(value)
 
 
 def global_bounds(msh: mesh.Mesh) -> np.ndarray:
@@ -89,8 +117,11 @@ def build_on_root(
         DOLFINx mesh data (mesh, cell tags, facet tags).
     """
     with gmsh_session(name) as gmsh:
-        if comm.rank == 0:
-            build(gmsh)
+
+        def failure(kind: str, text: str, _: bool) -> Exception:
+            return RuntimeError(f"gmsh could not build the {name!r} mesh: {kind}: {text}")
+
+        run_on_rank0(comm, lambda: build(gmsh), failure)
         data = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=gdim)
     return data
 
@@ -130,6 +161,7 @@ def rectangle(
     """
     x0, y0 = corner
     w, ht = size
+    check_lengths(h=h, width=w, height=ht)
 
     def build(gmsh):
         surface = gmsh.model.occ.addRectangle(x0, y0, 0.0, w, ht)
@@ -242,6 +274,7 @@ def quarter_disc(
     Returns:
         Mesh data.
     """
+    check_lengths(radius=radius, h=h, h_contact=h_contact, refine_radius=refine_radius)
     R = radius
 
     def build(gmsh):
@@ -317,6 +350,8 @@ def box(
     Returns:
         Mesh data.
     """
+    check_lengths(h_bottom=h_bottom, h_top=h_top)
+    refinements = check_level("refinements", refinements)
     x0, y0, z0 = lower
     x1, y1, z1 = upper
 

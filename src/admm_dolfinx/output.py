@@ -19,6 +19,8 @@ from typing import IO, Any
 from dolfinx import fem, io
 from mpi4py import MPI
 
+from admm_dolfinx._rank0 import run_on_rank0
+
 __all__ = [
     "atomic_directory",
     "atomic_file",
@@ -48,29 +50,16 @@ def rank0_write(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
         OSError: If ``fn`` raised one (the path cannot be written), on every rank.
         RuntimeError: If ``fn`` raised anything else, on every rank.
     """
-    value, failure = None, None
-    if comm.rank == 0:
-        try:
-            value = fn()
-        except Exception as error:
-            failure = error
-    report = comm.bcast(
-        None
-        if failure is None
-        else (type(failure).__name__, str(failure), isinstance(failure, OSError)),
-        root=0,
-    )
-    if report is not None:
-        name, text, is_os_error = report
+
+    def failure(name: str, text: str, is_os_error: bool) -> Exception:
         if is_os_error:
-            raise OSError(
+            return OSError(
                 f"Cannot write the output {str(target)!r} ({name}: {text}). Choose a "
                 "writable location (for instance with --out)."
-            ) from failure
-        raise RuntimeError(
-            f"Writing the output {str(target)!r} failed on rank 0: {name}: {text}"
-        ) from failure
-    return comm.bcast(value, root=0)
+            )
+        return RuntimeError(f"Writing the output {str(target)!r} failed on rank 0: {name}: {text}")
+
+    return run_on_rank0(comm, fn, failure)
 
 
 @contextlib.contextmanager

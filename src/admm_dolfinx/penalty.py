@@ -52,6 +52,7 @@ from dolfinx.common import Timer
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
+from admm_dolfinx._rank0 import run_on_rank0
 from admm_dolfinx.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.contact_pencil import (
     ContactSpace,
@@ -245,26 +246,19 @@ def _dense_extremes(problem, condensed, prefix, petsc_options):
         condensed = CondensedOperator(problem, prefix + "schur_", petsc_options)
     try:
         t1 = time.perf_counter()
-        outcome: tuple | str
-        if problem.comm.rank == 0:
-            try:
-                with Timer("admm_dolfinx: r* dense pencil"):
-                    outcome = extremes_from_schur(
-                        condensed.schur,
-                        condensed.k_cc,
-                        condensed.support.weights,
-                        prefix + "dense_",
-                    )
-            except RuntimeError as error:
-                outcome = str(error)
-            except Exception as error:  # rank 0 alone must not raise: the others wait
-                outcome = f"The dense r* failed on rank 0: {type(error).__name__}: {error}"
-        else:
-            outcome = ""
-        outcome = problem.comm.bcast(outcome, root=0)
-        if isinstance(outcome, str):
-            raise RuntimeError(outcome)
-        lambda_min, lambda_max, rigid = outcome
+
+        def dense() -> tuple[float, float, int]:
+            with Timer("admm_dolfinx: r* dense pencil"):
+                return extremes_from_schur(
+                    condensed.schur, condensed.k_cc, condensed.support.weights, prefix + "dense_"
+                )
+
+        def failure(name: str, text: str, _: bool) -> Exception:
+            if name == "RuntimeError":  # the explained failures of extremes_from_schur
+                return RuntimeError(text)
+            return RuntimeError(f"The dense r* failed on rank 0: {name}: {text}")
+
+        lambda_min, lambda_max, rigid = run_on_rank0(problem.comm, dense, failure)
         details = {
             "method": "dense",
             "m": problem.contact.num_global,

@@ -16,7 +16,14 @@ from dolfinx import fem, mesh
 from mpi4py import MPI
 
 from admm_dolfinx.material import LinearElastic
-from admm_dolfinx.meshing import box, quarter_disc, rectangle, structured_rectangle
+from admm_dolfinx.meshing import (
+    box,
+    check_lengths,
+    check_level,
+    quarter_disc,
+    rectangle,
+    structured_rectangle,
+)
 from admm_dolfinx.obstacles import Ball, Obstacle, Plane
 from admm_dolfinx.problem import ContactProblem
 
@@ -104,6 +111,7 @@ def example1(
     Returns:
         The scene.
     """
+    check_lengths(h=h)
     tags = {"left": 1, "top": 2, "bottom": 3, "right": 4}
     if mesher == "gmsh":
         data = rectangle(comm, (0.0, 0.0), (2.0, 1.0), h, tags)
@@ -174,6 +182,7 @@ def example2(
     Returns:
         The scene.
     """
+    level = check_level("level", level)
     tags = {"axis": 1, "top": 2, "arc": 3}
     arc = 0.5 * np.pi * radius
     h_contact = arc / (34 * 2**level)
@@ -237,6 +246,7 @@ def example3(
     Returns:
         The scene.
     """
+    level = check_level("level", level)
     tags = {"bottom": 3, "top": 1, "sides": 4}
     data = box(comm, (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5), h_bottom, h_top, level, tags)
     msh, facet_tags = data.mesh, data.facet_tags
@@ -310,6 +320,7 @@ def hertz(
     Returns:
         The scene; ``info`` holds the analytic ``a`` and ``p0``.
     """
+    level = check_level("level", level)
     e_star = E / (1.0 - nu**2)
     total = half_width**2 * np.pi * e_star / (4.0 * radius)  # P on the whole cylinder
     h_contact = half_width / 4.0 / 2**level
