@@ -196,3 +196,16 @@ def test_a_gmsh_failure_on_rank_0_is_raised_on_every_rank():
 
     with pytest.raises(RuntimeError, match="'broken' mesh: ValueError: planted"):
         build_on_root(MPI.COMM_WORLD, "broken", 2, build)
+
+
+def test_bad_penalty_estimate_options(scene):
+    """r*'s own options are checked before anything is factorised."""
+    from admm_dolfinx import estimate_penalty
+
+    problem = scene.problem()
+    with pytest.raises(ValueError, match="penalty_tol must lie in"):
+        ADMMSolver(problem, penalty_tol=0.0)
+    with pytest.raises(ValueError, match="penalty_tol must lie in"):
+        ADMMSolver(problem, penalty_tol=math.nan)
+    with pytest.raises(ValueError, match="max_it must be an integer ≥ 1"):
+        estimate_penalty(problem, max_it=0)

@@ -254,7 +254,8 @@ class ADMMSolver:
 
     Raises:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
-            (0, 2), a negative Anderson memory, or an unknown mode or stopping test;
+            (0, 2), a negative Anderson memory, ``penalty_tol`` outside (0, 1), or an
+            unknown mode or stopping test;
             for ``condensed=True`` under MPI or without a MUMPS factorisation, and
             ``polish=True`` without a MUMPS factorisation.
 
@@ -306,6 +307,8 @@ class ADMMSolver:
             raise TypeError(f"anderson (memory) must be an int, got {anderson!r}.")
         if anderson < 0:
             raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
+        if not (isinstance(penalty_tol, int | float) and 0.0 < penalty_tol < 1.0):
+            raise ValueError(f"penalty_tol must lie in (0, 1), got {penalty_tol!r}.")
         if stopping not in _STOPPING:
             raise ValueError(f"stopping must be one of {_STOPPING}, got {stopping!r}.")
         for name, value in (("condensed", condensed), ("polish", polish)):

@@ -48,6 +48,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from dolfinx.common import Timer
 from petsc4py import PETSc
 
@@ -161,11 +162,13 @@ def estimate_penalty(
         The estimate.
 
     Raises:
-        ValueError: For a tolerance outside (0, 1) or an unknown method.
+        ValueError: For a tolerance outside (0, 1), ``max_it`` < 1 or an unknown method.
         RuntimeError: If an eigenvalue solve does not converge.
     """
     if not (0.0 < tol < 1.0):
         raise ValueError(f"tol must lie in (0, 1), got {tol}.")
+    if isinstance(max_it, bool) or not isinstance(max_it, int | np.integer) or max_it < 1:
+        raise ValueError(f"max_it must be an integer ≥ 1, got {max_it!r}.")
     if method not in PENALTY_METHODS:
         raise ValueError(f"method must be one of {PENALTY_METHODS}, got {method!r}.")
     prefix = petsc_options_prefix or unique_prefix("penalty_")
