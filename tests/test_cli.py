@@ -139,3 +139,17 @@ def test_a_figure_that_fails_on_rank_0_fails_on_every_rank(tmp_path_factory, mon
         )
     MPI.COMM_WORLD.Barrier()
     assert list(tmp.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["run", "example1", "--h", "-1"], "h must be a positive finite length"),
+        (["run", "example1", "--h", "0.25", "--penalty", "-5"], "penalty r must be a positive"),
+    ],
+)
+def test_cli_bad_input_is_an_error_message(argv, message, capsys):
+    """Bad input on the command line: the library's message on one line, status 1."""
+    assert main(argv) == 1
+    if MPI.COMM_WORLD.rank == 0:
+        assert message in capsys.readouterr().err

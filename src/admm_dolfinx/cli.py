@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return args.func(args)
-    except OSError as error:  # an output path: raised on every rank alike
+    except (OSError, ValueError) as error:  # an output path or bad input: every rank
         if args.verbose:
             raise
         if MPI.COMM_WORLD.rank == 0:
