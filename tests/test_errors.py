@@ -209,3 +209,25 @@ def test_bad_penalty_estimate_options(scene):
         ADMMSolver(problem, penalty_tol=math.nan)
     with pytest.raises(ValueError, match="max_it must be an integer ≥ 1"):
         estimate_penalty(problem, max_it=0)
+
+
+def test_bad_sweep_and_bcs_arguments(scene):
+    """A sweep's penalties are all checked before its first solve; a single
+    DirichletBC where a list is expected is named as such."""
+    from admm_dolfinx.sweep import paper_penalty_grid, sample_penalty
+
+    problem = scene.problem()
+    for grid, message in [
+        ([1e6, -1.0], "positive and finite; got \\[-1.0\\]"),
+        ([], "non-empty 1D"),
+        ([[1e6]], "non-empty 1D"),
+        ([math.nan], "positive and finite"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            sample_penalty(problem, grid)
+    with pytest.raises(ValueError, match="num must be an integer ≥ 1"):
+        paper_penalty_grid(1e6, 0)
+    with pytest.raises(ValueError, match="E must be a positive"):
+        paper_penalty_grid(-1.0, 10)
+    with pytest.raises(TypeError, match="pass \\[bc\\], not bc"):
+        _problem(scene, bcs=scene.bcs[0])

@@ -188,6 +188,8 @@ class ContactProblem(PetscOwner):
             )
         if isinstance(contact_marker, bool) or not isinstance(contact_marker, int | np.integer):
             raise TypeError(f"`contact_marker` must be an int, got {contact_marker!r}.")
+        if isinstance(bcs, fem.DirichletBC):
+            raise TypeError("`bcs` must be a list of DirichletBC objects: pass [bc], not bc.")
         bcs = list(bcs or [])
         for bc in bcs:
             if not isinstance(bc, fem.DirichletBC):

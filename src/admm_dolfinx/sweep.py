@@ -69,7 +69,16 @@ def paper_penalty_grid(E: float, num: int = 200, low: float = 0.1, high: float =
 
     Returns:
         The penalties, ascending.
+
+    Raises:
+        ValueError: For E ≤ 0, ``num`` < 1 or not 0 < low < high.
     """
+    if not (np.isfinite(E) and E > 0):
+        raise ValueError(f"E must be a positive finite number, got {E!r}.")
+    if isinstance(num, bool) or not isinstance(num, int | np.integer) or num < 1:
+        raise ValueError(f"num must be an integer ≥ 1, got {num!r}.")
+    if not (np.isfinite(high) and 0.0 < low < high):
+        raise ValueError(f"The grid needs 0 < low < high (finite), got low={low!r}, high={high!r}.")
     edges = np.linspace(low * E, high * E, num + 1)
     return 0.5 * (edges[:-1] + edges[1:])
 
@@ -101,8 +110,21 @@ def sample_penalty(
 
     Returns:
         The sweep.
+
+    Raises:
+        ValueError: If ``r_values`` is empty, not 1D, or holds a penalty that is not
+            positive and finite (checked before any solve).
     """
     r_values = np.asarray(r_values, dtype=np.float64)
+    if r_values.ndim != 1 or r_values.size == 0:
+        raise ValueError(
+            f"r_values must be a non-empty 1D sequence of penalties, got shape {r_values.shape}."
+        )
+    if not np.all(np.isfinite(r_values) & (r_values > 0)):
+        bad = r_values[~(np.isfinite(r_values) & (r_values > 0))]
+        raise ValueError(
+            f"Every penalty of the sweep must be positive and finite; got {bad[:5].tolist()}."
+        )
     iterations = np.empty(r_values.size, dtype=np.int64)
     converged = np.zeros(r_values.size, dtype=bool)
     t0 = time.perf_counter()
