@@ -231,3 +231,17 @@ def test_bad_sweep_and_bcs_arguments(scene):
         paper_penalty_grid(-1.0, 10)
     with pytest.raises(TypeError, match="pass \\[bc\\], not bc"):
         _problem(scene, bcs=scene.bcs[0])
+
+
+def test_solve_after_destroy_is_a_clear_error():
+    """A destroyed solver, or a solver whose problem was destroyed, says so."""
+    problem = example1(h=1 / 4, mesher="builtin").problem()
+    solver = ADMMSolver(problem)
+    solver.destroy()
+    with pytest.raises(RuntimeError, match="ADMMSolver has been destroyed"):
+        solver.solve()
+    solver = ADMMSolver(problem)
+    problem.destroy()
+    with pytest.raises(RuntimeError, match="ContactProblem of this solver has been destroyed"):
+        solver.solve()
+    solver.destroy()

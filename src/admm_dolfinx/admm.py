@@ -465,9 +465,20 @@ class ADMMSolver:
         Raises:
             ADMMConvergenceError: If the stopping test is not met within ``max_iter``
                 iterations (the partial result is ``err.result``).
-            RuntimeError: If a linear solve fails.
+            RuntimeError: If a linear solve fails, or the solver or its problem has
+                been destroyed.
         """
         problem = self.problem
+        if self.operator.ksp is None:
+            raise RuntimeError(
+                "This ADMMSolver has been destroyed (destroy() or the end of its with "
+                "block); create a new one."
+            )
+        if problem.A is None:
+            raise RuntimeError(
+                "The ContactProblem of this solver has been destroyed; destroy the "
+                "problem only after its solvers are done."
+            )
         if problem.sync_load():  # L's data or the Dirichlet values changed since
             logger.info("ADMM: the load data changed; reassembled the load")
         c = problem.contact
