@@ -31,7 +31,6 @@ Writes out_benchmarks/polish_3d.csv.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import time
 from pathlib import Path
 
@@ -44,6 +43,7 @@ from timing import timed
 from admm_dolfinx import ADMMSolver
 from admm_dolfinx.condensed import ContactSupport
 from admm_dolfinx.operators import PenalisedOperator
+from admm_dolfinx.petsc_schur import selected_inverse_entries
 from admm_dolfinx.scenes import example3
 
 MESHES = [
@@ -88,8 +88,8 @@ def contact_block_of_inverse(problem, operator, b, x):
     """Seconds to read the C × C block of (A + rNᵀMN)⁻¹ off the plain factors.
 
     The other exact route to the dense compliance that polishing needs: MUMPS's
-    selected entries of the inverse (ICNTL(30), ``MatMumpsGetInverseTranspose``, which
-    petsc4py does not wrap), with the factorisation the ADMM already has. Checked
+    selected entries of the inverse (:func:`admm_dolfinx.petsc_schur.selected_inverse_entries`),
+    with the factorisation the ADMM already has. Checked
     against one solve; one process (the requested pattern is a sequential matrix).
     """
     support = ContactSupport.build(problem)
@@ -100,16 +100,10 @@ def contact_block_of_inverse(problem, operator, b, x):
     pattern = PETSc.Mat().createAIJ(
         (n, n), csr=(indptr, np.tile(dofs, c), np.zeros(c * c)), comm=PETSc.COMM_SELF
     )
-    factor = operator.ksp.getPC().getFactorMatrix()
-    lib = ctypes.CDLL(PETSc.__file__)  # dlsym searches its dependencies: libpetsc
-    lib.MatMumpsGetInverseTranspose.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     try:
         t0 = time.perf_counter()
-        if lib.MatMumpsGetInverseTranspose(factor.handle, pattern.handle) != 0:
-            raise RuntimeError("MatMumpsGetInverseTranspose failed.")
+        selected_inverse_entries(operator.ksp.getPC().getFactorMatrix(), pattern)
         seconds = time.perf_counter() - t0
-        factor.setMumpsIcntl(30, 0)  # back to ordinary solves
-        factor.setMumpsIcntl(20, 0)
         column = c // 2
         b.set(0.0)
         b.setValue(dofs[column], 1.0)

@@ -14,8 +14,10 @@ r* = 1/sqrt(λ_min λ_max) needs the two ends of its spectrum, which SLEPc compu
 * above: Krylov–Schur for the largest θ (one at a time, each found rigid motion
   deflated, so that a repeated θ = 1/r_a cannot hide behind its first copy) and
   Krylov–Schur with shift-and-invert at 0 (a dense Cholesky factorisation of T) for
-  the smallest. SLEPc's LAPACK solver returns all eigenvectors and their residuals,
-  which at m = 3313 takes a minute where these take about a second.
+  the smallest. SLEPc's LAPACK solver also returns all eigenvectors and their
+  residuals, which dominates at thousands of contact nodes (r* on the 257k-dof mesh of
+  Example 3, m = 3313: 73 s that way, 5.5 s with the compliance included this way;
+  ``benchmarks/acceleration.py`` then, ``benchmarks/polish_3d.py`` now).
 """
 
 from __future__ import annotations
@@ -94,7 +96,7 @@ def extremes_from_schur(
     r_a = 1e-3 * float(np.trace(schur) / np.trace(k_cc))
     compliance = compliance_matrix(schur, k_cc, weights, r_a)
     rigid_at = 1.0 / r_a
-    try:  # a RuntimeError only: the caller turns it into the same error on every rank
+    try:  # a SLEPc failure gets a message that names the prefix and the alternative
         if compliance.shape[0] <= DENSE_ALL_EIGENVALUES:
             theta = _all_eigenvalues(compliance, prefix)
             finite = theta[1.0 - r_a * theta > RIGID_TOL]

@@ -89,17 +89,14 @@ def atomic_directory(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
         comm.Barrier()
 
         def publish() -> None:
-            if ok:
-                if final.exists():
-                    shutil.rmtree(final)
-                tmp.rename(final)
-            else:
-                shutil.rmtree(tmp, ignore_errors=True)
+            if final.exists():
+                shutil.rmtree(final)
+            tmp.rename(final)
 
         if ok:
             rank0_write(comm, final, publish)
         elif comm.rank == 0:
-            publish()
+            shutil.rmtree(tmp, ignore_errors=True)
         comm.Barrier()
     if not ok:  # reached by the ranks whose block succeeded while another's failed
         raise RuntimeError(

@@ -1,8 +1,9 @@
-"""PETSc's Schur-complement interface of factored matrices, which petsc4py does not wrap.
+"""PETSc's calls on MUMPS factors that petsc4py does not wrap: the Schur complement.
 
 The functions are resolved with ctypes in the PETSc library that petsc4py itself is
 linked to (``dlsym`` on petsc4py's extension module searches its dependencies), so
-they act on the same objects as petsc4py. Used by :mod:`admm_dolfinx.condensed`.
+they act on the same objects as petsc4py. Used by :mod:`admm_dolfinx.condensed`, and
+(selected entries of the inverse) by ``benchmarks/polish_3d.py``.
 """
 
 from __future__ import annotations
@@ -13,7 +14,13 @@ import numpy as np
 import numpy.typing as npt
 from petsc4py import PETSc
 
-__all__ = ["SchurBlock", "factorize_schur", "full_symmetric", "set_schur_indices"]
+__all__ = [
+    "SchurBlock",
+    "factorize_schur",
+    "full_symmetric",
+    "selected_inverse_entries",
+    "set_schur_indices",
+]
 
 _MAT_FACTOR_SCHUR_UNFACTORED = 0
 _PETSC_INT = ctypes.c_int64 if np.dtype(PETSc.IntType).itemsize == 8 else ctypes.c_int32
@@ -32,6 +39,7 @@ def _petsc() -> ctypes.CDLL:
         lib.MatDenseGetArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
         lib.MatDenseRestoreArray.argtypes = [vp, ctypes.POINTER(ctypes.POINTER(ctypes.c_double))]
         lib.MatGetSize.argtypes = [vp, ctypes.POINTER(_PETSC_INT), ctypes.POINTER(_PETSC_INT)]
+        lib.MatMumpsGetInverseTranspose.argtypes = [vp, vp]
         _capi = lib
     return _capi
 
@@ -90,3 +98,15 @@ def set_schur_indices(factor: PETSc.Mat, indices: PETSc.IS) -> None:
 def factorize_schur(factor: PETSc.Mat) -> None:
     """``MatFactorFactorizeSchurComplement``: factorise the (modified) dense block now."""
     _call("MatFactorFactorizeSchurComplement", factor.handle)
+
+
+def selected_inverse_entries(factor: PETSc.Mat, pattern: PETSc.Mat) -> None:
+    """``MatMumpsGetInverseTranspose``: fill ``pattern`` with those entries of A⁻ᵀ.
+
+    MUMPS's selected entries of the inverse (ICNTL(30)) from existing factors; one
+    process (``pattern`` is a sequential AIJ matrix of A's size). The factors are left
+    ready for ordinary solves again.
+    """
+    _call("MatMumpsGetInverseTranspose", factor.handle, pattern.handle)
+    factor.setMumpsIcntl(30, 0)
+    factor.setMumpsIcntl(20, 0)

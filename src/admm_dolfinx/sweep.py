@@ -120,8 +120,8 @@ def sample_penalty(
         raise ValueError(
             f"r_values must be a non-empty 1D sequence of penalties, got shape {r_values.shape}."
         )
-    if not np.all(np.isfinite(r_values) & (r_values > 0)):
-        bad = r_values[~(np.isfinite(r_values) & (r_values > 0))]
+    bad = r_values[~(np.isfinite(r_values) & (r_values > 0))]
+    if bad.size:
         raise ValueError(
             f"Every penalty of the sweep must be positive and finite; got {bad[:5].tolist()}."
         )
