@@ -41,19 +41,16 @@ def algorithm5_eigenvalues(problem) -> np.ndarray:
     return np.sort(eig.real)
 
 
-def rotated_pencil_eigenvalues(problem) -> np.ndarray:
-    """Eigenvalues λ of M w = λ S w for any normals, floating bodies included.
+def rotated_schur(problem) -> tuple[np.ndarray, np.ndarray]:
+    """(S, M): the Schur complement of A onto the contact normal dofs, any normals; dense.
 
     At each contact node the free dofs are rotated (a Householder reflection within
     the free components) so that the first rotated dof is the normal one; then
     S = A_CC − A_CI A_II⁻¹ A_IC as in Algorithm 5. Where a Dirichlet condition fixes
     some components, only the free part ñ of the normal moves the node towards the
     obstacle, (N u)_j = |ñ_j| c_j, and S is scaled to D^{-½} S D^{-½} with D = |ñ|².
-    S may be singular (a floating body): the pencil is solved as S w = ν M w with
-    scipy's symmetric solver, and λ = 1/ν, with ν = 0 giving λ = ∞.
+    Rows are the contact nodes in the problem's order; M is the lumped mass.
     """
-    import scipy.linalg as sla
-
     assert problem.comm.size == 1, "dense reference is serial"
     c = problem.contact
     bs = problem.V.dofmap.index_map_bs
@@ -85,7 +82,20 @@ def rotated_pencil_eigenvalues(problem) -> np.ndarray:
     A_IC = Ar[np.ix_(interior, C)]
     S = Ar[np.ix_(C, C)] - A_IC.T @ np.linalg.solve(A_II, A_IC)
     S = S / np.sqrt(np.outer(D, D))
-    nu = sla.eigh(0.5 * (S + S.T), np.diag(c.mass), eigvals_only=True)
+    return 0.5 * (S + S.T), c.mass.copy()
+
+
+def rotated_pencil_eigenvalues(problem) -> np.ndarray:
+    """Eigenvalues λ of M w = λ S w for any normals, floating bodies included.
+
+    S from :func:`rotated_schur`. S may be singular (a floating body): the pencil is
+    solved as S w = ν M w with scipy's symmetric solver, and λ = 1/ν, with ν = 0
+    giving λ = ∞.
+    """
+    import scipy.linalg as sla
+
+    S, mass = rotated_schur(problem)
+    nu = sla.eigh(S, np.diag(mass), eigvals_only=True)
     scale = np.max(np.abs(nu))
     with np.errstate(divide="ignore"):
         lam = np.where(np.abs(nu) > 1e-10 * scale, 1.0 / nu, np.inf)

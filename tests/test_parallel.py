@@ -69,3 +69,34 @@ def test_parallel_auto_penalty_matches_serial():
     assert par.extra["polish"]["polished_at"] == par.iterations
     assert rel_diff(up, us) <= 1e-10
     assert rel_diff(lp, ls) <= 1e-10
+
+
+@parallel_only
+def test_parallel_surface_metric_matches_serial():
+    """3D default (surface metric): r*, β, r and the iterates equal the serial ones.
+
+    At penalty_tol ≤ 1e-6 λ_min and λ_max come from factorisations (the multigrid λ_max
+    of the default tolerance depends on the partition at the eigenvalue tolerance);
+    μ_max's layer solves start from a partition-independent vector. Step 2 runs on
+    rank 0 in rank order of the nodes, so only round-off differs.
+    """
+    from admm_dolfinx.scenes import example3
+
+    results = {}
+    for name, comm in (("par", MPI.COMM_WORLD), ("ser", MPI.COMM_SELF)):
+        problem = example3(comm, level=1).problem()
+        with ADMMSolver(problem, rtol=1e-10, penalty_tol=1e-8) as solver:
+            result = solver.solve()
+        _, u = gather_nodal(result.u)
+        results[name] = (result, u)
+    (par, up), (ser, us) = results["par"], results["ser"]
+    assert par.settings["penalty_metric"] == ser.settings["penalty_metric"] == "surface"
+    for key in ("lambda_min", "lambda_max", "beta", "mu_max", "r"):
+        assert par.extra["surface_penalty"][key] == pytest.approx(
+            ser.extra["surface_penalty"][key], rel=1e-9
+        )
+    assert par.iterations == ser.iterations
+    assert par.history["accelerated"] == ser.history["accelerated"]
+    for key in ("fpr", "equilibrium", "du"):
+        np.testing.assert_allclose(par.history[key], ser.history[key], rtol=1e-6, atol=1e-14)
+    assert rel_diff(up, us) <= 1e-10

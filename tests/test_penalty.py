@@ -116,26 +116,37 @@ def test_auto_penalty_2d_factorises_the_body_once():
         assert result.timings["penalty"] > estimate.time
 
 
+@pytest.mark.parametrize("metric", ["mass", "surface"])
 @pytest.mark.parametrize("tol", [1e-2, 1e-8])
-def test_auto_penalty_shares_one_symbolic_factorisation(tol):
+def test_auto_penalty_shares_one_symbolic_factorisation(tol, metric):
     """3D (iterative r*), counted from PETSc's log (Cholesky events): the whole body is
     analysed once. At loose tolerance it is factorised once, at r* (λ_max by
     multigrid; each layer along Γ_C adds one small factorisation); at tight tolerance
-    also at r_a and for the exact Schur complement."""
+    also at r_a and for the exact Schur complement. The surface metric (the 3D
+    default) adds one small factorisation per layer of its μ_max and one of the
+    surface QP per change of the contact set (rank 0), and factorises the body at its
+    own r, with the same symbolic analysis."""
     problem = example3(level=0).problem()
     sym0, num0 = _cholesky_counts()
-    with ADMMSolver(problem, penalty_tol=tol) as solver:  # penalty="auto" is the default
+    with ADMMSolver(problem, penalty_tol=tol, penalty_metric=metric) as solver:
         result = solver.solve()
         estimate = solver.penalty_estimate
+        surface = solver.surface_penalty
     sym1, num1 = _cholesky_counts()
-    assert estimate is not None and result.penalty == estimate.r
-    assert estimate.details["method"] == "iterative"
+    assert estimate is not None and estimate.details["method"] == "iterative"
+    assert (surface is not None) == (metric == "surface")
+    assert result.penalty == (estimate.r if surface is None else surface.r)
     steps = estimate.details["layer_steps"]
+    extra = surface.details["layer_steps"] if surface else 0
+    if surface and problem.comm.rank == 0:  # step 2's QP: sparse Cholesky on rank 0
+        extra += result.extra["projection"]["factorisations"]
     assert (steps > 0) == (tol > 1e-6)
-    assert sym1 - sym0 == 1 + steps
-    assert num1 - num0 == (1 if steps else 3) + steps
+    assert sym1 - sym0 == 1 + steps + extra
+    assert num1 - num0 == (1 if steps else 3) + steps + extra
     assert estimate.details["lambda_max_method"] == ("multigrid" if steps else "factorised")
-    assert result.timings["penalty"] == estimate.time
+    assert result.timings["penalty"] == pytest.approx(
+        estimate.time + (surface.time if surface else 0.0), rel=1e-12
+    )
 
 
 @pytest.mark.parametrize("h", [1 / 16, 1 / 128])

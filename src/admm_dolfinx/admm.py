@@ -73,6 +73,8 @@ from admm_dolfinx.penalty import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_
 from admm_dolfinx.petsc import unique_prefix
 from admm_dolfinx.polish import ActiveSetPolish
 from admm_dolfinx.problem import ContactProblem
+from admm_dolfinx.surface_metric import SurfaceMetric, SurfaceProjection
+from admm_dolfinx.surface_penalty import SurfacePenalty, estimate_surface_penalty
 
 __all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]
 
@@ -89,6 +91,7 @@ DEFAULT_ALPHA = 1.6
 DEFAULT_ANDERSON = 5
 
 _STOPPING = ("kkt", "change")
+_METRICS = ("auto", "mass", "surface")
 #: ``history["accelerated"]`` codes: what the evaluated state was.
 _REJECTED, _PLAIN, _ANDERSON, _POLISHED = -1, 0, 1, 2
 _NOTES = {_PLAIN: "", _ANDERSON: " (Anderson)", _POLISHED: " (polished)"}
@@ -251,13 +254,23 @@ class ADMMSolver:
             nodes, break-even at 2137, slower above, and slower under MPI, where it
             is a second factorisation; ``benchmarks/polish_3d.py``); ``False``:
             never. Paper mode never polishes.
+        penalty_metric: The norm of the penalty term (:mod:`admm_dolfinx.surface_metric`):
+            ``"mass"``, the paper's r M; ``"surface"``, r (M + βL_Γ) with L_Γ the
+            Laplace–Beltrami stiffness of Γ_C, which makes the iteration count
+            independent of the mesh (3D, ``penalty="auto"``: β and r are chosen by
+            :func:`~admm_dolfinx.surface_penalty.estimate_surface_penalty`, not in
+            paper mode, not with polishing); ``"auto"`` (default): ``"surface"``
+            where it applies, i.e. in 3D with ``penalty="auto"``, the accelerated
+            mode and no polishing, else ``"mass"``.
 
     Raises:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
             (0, 2), a negative Anderson memory, ``penalty_tol`` outside (0, 1), or an
             unknown mode or stopping test;
             for ``condensed=True`` under MPI or without a MUMPS factorisation, and
-            ``polish=True`` without a MUMPS factorisation.
+            ``polish=True`` without a MUMPS factorisation;
+            ``penalty_metric="surface"`` in 2D, in paper mode, with a given penalty or
+            with ``polish=True``.
 
     r* and the factorisation are computed here, once. They depend on A and NᵀMN only,
     so :meth:`solve` may be called again after
@@ -285,6 +298,7 @@ class ADMMSolver:
         petsc_options_prefix: str | None = None,
         condensed: bool | None = None,
         polish: bool | None = None,
+        penalty_metric: str = "auto",
     ):
         if not isinstance(problem, ContactProblem):
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
@@ -311,12 +325,26 @@ class ADMMSolver:
             raise ValueError(f"penalty_tol must lie in (0, 1), got {penalty_tol!r}.")
         if stopping not in _STOPPING:
             raise ValueError(f"stopping must be one of {_STOPPING}, got {stopping!r}.")
+        if penalty_metric not in _METRICS:
+            raise ValueError(f"penalty_metric must be one of {_METRICS}, got {penalty_metric!r}.")
         for name, value in (("condensed", condensed), ("polish", polish)):
             if value is not None and not isinstance(value, bool):
                 raise TypeError(f"{name} must be None (automatic), True or False, got {value!r}.")
         auto = isinstance(penalty, str) and penalty == "auto"
         if not auto:
             penalty = _check_penalty(penalty)
+        if penalty_metric == "surface":
+            reasons = [
+                (problem.gdim != 3, "is for 3D bodies (a contact surface); this one is 2D"),
+                (not auto, "chooses r and β itself: pass penalty='auto'"),
+                (mode == "paper", "is not the paper's algorithm: use mode='accelerated'"),
+                (polish is True, "and polish=True exclude each other"),
+            ]
+            for failed, reason in reasons:
+                if failed:
+                    raise ValueError(
+                        f"penalty_metric='surface' {reason} (or pass penalty_metric='mass')."
+                    )
         self.problem = problem
         self.mode = mode
         self.rtol = rtol
@@ -358,6 +386,17 @@ class ADMMSolver:
             self.polisher = ActiveSetPolish.from_operator(problem, schur_source)
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
+        #: β and r of the surface metric (None with the paper's metric r M).
+        self.surface_penalty: SurfacePenalty | None = None
+        self._metric: SurfaceMetric | None = None
+        self._projection: SurfaceProjection | None = None
+        surface = penalty_metric == "surface" or (
+            penalty_metric == "auto"
+            and problem.gdim == 3
+            and auto
+            and mode == "accelerated"
+            and self.polisher is None
+        )
         self._time_schur = private.timings["factorization"] if private else 0.0
         try:
             if auto:
@@ -374,6 +413,19 @@ class ADMMSolver:
                     petsc_options_prefix=self.prefix + "penalty_",
                 )
                 penalty = self.penalty_estimate.r
+            if surface:
+                self._metric = SurfaceMetric(problem)
+                self.surface_penalty = estimate_surface_penalty(
+                    problem,
+                    self._metric,
+                    self.penalty_estimate,
+                    prefix=self.prefix + "surface_",
+                    petsc_options=petsc_options,
+                )
+                beta = self.surface_penalty.beta
+                self.operator.use_penalty_matrix(self._metric.penalty_matrix(beta), "Nᵀ(M + βL_Γ)N")
+                self._projection = self._metric.projection(beta)
+                penalty = self.surface_penalty.r
         finally:
             if private is not None:
                 private.destroy()
@@ -420,6 +472,7 @@ class ADMMSolver:
             "rtol": self.rtol,
             "max_iter": self.max_iter,
             "polish": self.polish,
+            "penalty_metric": "mass" if self._projection is None else "surface",
         }
 
     # ------------------------------------------------------------------ solve
@@ -504,6 +557,11 @@ class ADMMSolver:
         b0 = problem.create_vector()
         b = problem.create_vector()
         problem.assemble_rhs(r, b0)
+        projection = self._projection
+        if projection is not None:  # steps 2-3 in the metric r(M + βL_Γ)
+            projection.reset(g)
+            if self._metric.dirichlet_lift(b):
+                b0.axpy(r * projection.beta, b)
 
         if warm_start is None:
             x_old.set(0.0)
@@ -542,13 +600,20 @@ class ADMMSolver:
                     # step 1: (A + rK) u = f + NᵀM(r p − λ)
                     b0.copy(b)
                     problem.add_normal_force(b, r * p_in - lam_in)
+                    if projection is not None:  # Nᵀ R p = r NᵀM p + r β Nᵀ L_Γ p
+                        self._metric.add_surface_force(b, p_in, r * projection.beta)
                     self.operator.solve(b, x)
                     nu = problem.apply_normal(x)
                     # steps 2-3 with over-relaxation
                     xi = alpha * nu + (1.0 - alpha) * p_in
-                    with np.errstate(invalid="ignore"):
-                        p = np.minimum(xi + lam_in / r, g)
-                        lam = np.maximum(lam_in + r * (xi - g), 0.0)
+                    if projection is None:
+                        with np.errstate(invalid="ignore"):
+                            p = np.minimum(xi + lam_in / r, g)
+                            lam = np.maximum(lam_in + r * (xi - g), 0.0)
+                        # A u − f + NᵀMλ⁺ = NᵀM d at the contact nodes (Dirichlet rows aside)
+                        d = r * (p_in - nu) + (lam - lam_in)
+                    else:
+                        p, lam, d = projection(xi, lam_in, p_in, nu, r)
                     Tz = np.concatenate([p, lam])
 
                     # residuals of (u, λ⁺) and of the fixed-point map
@@ -561,8 +626,6 @@ class ADMMSolver:
                     p_prev = p
                     u_scale = x.norm(PETSc.NormType.NORM_INFINITY)
                     feas, comp = gap_residuals(problem, nu, lam, u_scale)
-                    # A u − f + NᵀMλ⁺ = NᵀM d at the contact nodes, Dirichlet rows excluded
-                    d = r * (p_in - nu) + (lam - lam_in)
                     eq = _ratio(
                         problem.global_norm(force * d),
                         max(load_norm, problem.global_norm(force * lam)),
@@ -633,6 +696,7 @@ class ADMMSolver:
         timings = {
             "assembly": problem.timings.get("assembly", 0.0),
             "penalty": (self.penalty_estimate.time if self.penalty_estimate else 0.0)
+            + (self.surface_penalty.time if self.surface_penalty else 0.0)
             + self._time_schur,
             "operator": self.operator.timings["operator"]
             + (self.polisher.setup_time if self.polisher else 0.0),
@@ -666,6 +730,8 @@ class ADMMSolver:
                 "penalty_estimate": self.penalty_estimate.as_dict()
                 if self.penalty_estimate
                 else None,
+                "surface_penalty": self.surface_penalty.as_dict() if self.surface_penalty else None,
+                "projection": projection.statistics() if projection is not None else None,
                 "polish": {
                     "polished_at": polished_at,
                     "attempts": polisher.attempts,
@@ -715,8 +781,13 @@ class ADMMSolver:
 
     # ------------------------------------------------------------------ lifetime
     def destroy(self) -> None:
-        """Free the KSP and the operator A + rNᵀMN."""
+        """Free the KSP, the step-1 operator and the surface metric's objects."""
         self.operator.destroy()
+        for name in ("_projection", "_metric"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.destroy()
+                setattr(self, name, None)
 
     def __enter__(self) -> ADMMSolver:
         return self

@@ -58,6 +58,30 @@ class PenalisedOperator(FactorisedOperator):
         self.solves = 0
         self.timings: dict[str, float] = {"operator": 0.0, "factorization": 0.0}
         self._label = "A + r NᵀMN"
+        self._penalty_matrix: PETSc.Mat | None = None
+        self._penalty_name = "NᵀMN"
+
+    def use_penalty_matrix(self, matrix: PETSc.Mat, name: str) -> None:
+        """Penalise with ``matrix`` instead of K = NᵀMN from the next :meth:`set_penalty` on.
+
+        Args:
+            matrix: Symmetric positive semi-definite, its pattern within A's (e.g.
+                Nᵀ(M + βL_Γ)N of :mod:`admm_dolfinx.surface_metric`); the operator
+                takes ownership.
+            name: What it is, for labels (``"Nᵀ(M + βL_Γ)N"``).
+        """
+        if self._penalty_matrix is not None:
+            self._penalty_matrix.destroy()
+        self._penalty_matrix = matrix
+        self._penalty_name = name
+        self.penalty = float("nan")  # the next set_penalty refactorises
+
+    def destroy(self) -> None:
+        """Free the matrix, the KSP and a penalty matrix given to :meth:`use_penalty_matrix`."""
+        super().destroy()
+        if self._penalty_matrix is not None:
+            self._penalty_matrix.destroy()
+            self._penalty_matrix = None
 
     def set_penalty(self, r: float) -> None:
         """Form A + rK and factorise it (numeric only, after the first time).
@@ -67,7 +91,8 @@ class PenalisedOperator(FactorisedOperator):
         """
         if r == self.penalty:
             return
-        A, K = self.problem.A, self.problem.K
+        A = self.problem.A
+        K = self.problem.K if self._penalty_matrix is None else self._penalty_matrix
         with Timer("admm_dolfinx: operator A + rK"):
             t0 = time.perf_counter()
             if self.matrix is None:
@@ -83,7 +108,7 @@ class PenalisedOperator(FactorisedOperator):
             self.ksp.setUp()
             self.timings["factorization"] = time.perf_counter() - t0
         self.penalty = float(r)
-        self._label = f"A + r NᵀMN at r = {r:.6g}"
+        self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
 
     def _ensure_ksp(self) -> None:
         """Create the KSP (factorising), or tell it that the matrix values changed."""

@@ -1,0 +1,255 @@
+"""The surface metric r(M + βL_Γ) against independent answers.
+
+L_Γ against the surface energy of linear functions, Nᵀ L_Γ N against (Nv)ᵀL_Γ(Nv),
+the step-2 QP against its KKT conditions and against the paper's node-wise step at
+β = 0, solutions against the paper's metric and SNES VI, β and r against the dense
+pencil. Runs serially and under ``mpiexec -n 2`` (the dense checks serially only).
+"""
+
+import math
+
+import numpy as np
+import pytest
+import ufl
+from dolfinx import fem
+from mpi4py import MPI
+
+from admm_dolfinx import ADMMSolver, Ball
+from admm_dolfinx.baselines import solve_snes_vi
+from admm_dolfinx.material import LinearElastic
+from admm_dolfinx.meshing import box
+from admm_dolfinx.scenes import Scene, example1, example3
+from admm_dolfinx.surface_metric import SurfaceMetric
+
+from conftest import rel_diff
+from dense_reference import rotated_schur
+
+serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="dense reference is serial")
+
+
+def _global(problem, local):
+    return np.concatenate(problem.comm.allgather(np.asarray(local)))
+
+
+def tilted_block(comm=MPI.COMM_WORLD, angle=0.3, side_z=-0.03):
+    """Example 3's block rotated about the y axis; the sides' z displacement prescribed.
+
+    The contact nodes on the bottom edges then have a normal with a prescribed (z) and
+    a free (x) part, so the penalty's Dirichlet lifting is not zero.
+    """
+    tags = {"bottom": 3, "top": 1, "sides": 4}
+    data = box(comm, (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5), 0.3, 0.3, 0, tags)
+    msh, ft = data.mesh, data.facet_tags
+    c, s = math.cos(angle), math.sin(angle)
+    rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    msh.geometry.x[:] = msh.geometry.x @ rotation.T
+    material = LinearElastic(1e6, 0.45)
+    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    top = fem.locate_dofs_topological(V, 2, ft.find(tags["top"]))
+    push = rotation @ np.array([0.0, 0.0, -0.2])
+    Vz, _ = V.sub(2).collapse()
+    sides = fem.locate_dofs_topological((V.sub(2), Vz), 2, ft.find(tags["sides"]))
+    side_value = fem.Function(Vz)
+    side_value.x.array[:] = side_z
+    bcs = [
+        fem.dirichletbc(push, top, V),
+        fem.dirichletbc(side_value, sides, V.sub(2)),
+    ]
+    zero = fem.Constant(msh, np.zeros(3))
+    return Scene(
+        name="tilted block",
+        mesh=msh,
+        facet_tags=ft,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(zero, v) * ufl.dx,
+        bcs=bcs,
+        contact_marker=tags["bottom"],
+        obstacle=Ball(center=rotation @ np.array([-0.3, 0.0, -1.0]), radius=0.5),
+        h=0.3,
+        info={},
+    )
+
+
+def test_laplace_beltrami_energy_of_linear_functions():
+    """∫_Γ |∇_Γ x|² = |Γ_C| = 2 on the flat bottom face of Example 3 (1 × 2)."""
+    problem = example3(level=0).problem()
+    metric = SurfaceMetric(problem)
+    try:
+        c = problem.contact
+        q, lq = metric.surface_stiffness.createVecs()
+        for axis, expected in ((0, 2.0), (1, 2.0), (2, 0.0)):
+            q.set(0.0)
+            q.array[c.dofs] = c.coordinates[:, axis]
+            metric.surface_stiffness.mult(q, lq)
+            energy = problem.comm.allreduce(float(q.array @ lq.array), op=MPI.SUM)
+            assert energy == pytest.approx(expected, abs=1e-12)
+        # constants are in the kernel
+        q.set(0.0)
+        q.array[c.dofs] = 1.0
+        metric.surface_stiffness.mult(q, lq)
+        assert problem.global_norm(lq.array[c.dofs], np.inf) <= 1e-12
+        q.destroy()
+        lq.destroy()
+    finally:
+        metric.destroy()
+
+
+@pytest.mark.parametrize("scene", [lambda: example3(level=1), tilted_block])
+def test_normal_stiffness_is_nt_l_n(scene):
+    """vᵀ (Nᵀ L_Γ N) v = (N v)ᵀ L_Γ (N v) for random v; Dirichlet rows of Nᵀ L_Γ N vanish."""
+    problem = scene().problem()
+    metric = SurfaceMetric(problem)
+    try:
+        c = problem.contact
+        rng = np.random.default_rng(problem.comm.rank)
+        v = problem.create_vector()
+        v.array[:] = rng.standard_normal(v.array.size)
+        # N v with the free normals (what the penalty acts on)
+        bs = problem.V.dofmap.index_map_bs
+        nv = np.einsum("ij,ij->i", v.array_r.reshape(-1, bs)[c.nodes], c.free_normals)
+        q, lq = metric.surface_stiffness.createVecs()
+        q.set(0.0)
+        q.array[c.dofs] = nv
+        metric.surface_stiffness.mult(q, lq)
+        expected = problem.comm.allreduce(float(q.array @ lq.array), op=MPI.SUM)
+        bv = problem.create_vector()
+        metric.normal_stiffness.mult(v, bv)
+        assert v.dot(bv) == pytest.approx(expected, rel=1e-12)
+        fixed = np.concatenate([bc.dof_indices()[0] for bc in problem.bcs])
+        owned = fixed[fixed < bv.array.size]
+        assert np.all(bv.array[owned] == 0.0)
+        for obj in (v, bv, q, lq):
+            obj.destroy()
+    finally:
+        metric.destroy()
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.05, 1.0])
+def test_projection_solves_the_qp(beta):
+    """Steps 2-3 meet the QP's KKT conditions; at β = 0 they are the paper's clamp."""
+    problem = example3(level=1).problem()
+    metric = SurfaceMetric(problem)
+    projection = metric.projection(beta)
+    try:
+        c = problem.contact
+        m = c.gap.size
+        rng = np.random.default_rng(7 + problem.comm.rank)
+        r = 3e6
+        scale = 1e-3
+        gap = np.where(rng.random(m) < 0.1, np.inf, scale * rng.standard_normal(m))
+        xi, p_in, nu = (scale * rng.standard_normal(m) for _ in range(3))
+        lam_in = np.maximum(r * scale * rng.standard_normal(m), 0.0)
+        projection.reset(gap)
+        p, lam, d = projection(xi, lam_in, p_in, nu, r)
+        # R̂ = M + βL_Γ applied through the distributed matrices
+        q_vec, lq = metric.surface_stiffness.createVecs()
+
+        def apply_metric(x):
+            q_vec.set(0.0)
+            q_vec.array[c.dofs] = x
+            metric.surface_stiffness.mult(q_vec, lq)
+            return c.mass * x + beta * lq.array[c.dofs]
+
+        # λ⁺ = M⁻¹R(q − p) with R q = R ξ + M λ: M λ⁺ = r R̂(ξ − p) + M λ
+        np.testing.assert_allclose(
+            c.mass * lam, r * apply_metric(xi - p) + c.mass * lam_in, atol=1e-8 * r * scale
+        )
+        assert np.all(p <= gap + 1e-15)
+        assert np.all(lam >= 0.0)
+        assert np.all(lam[p < gap - 1e-12] == 0.0)
+        expected_d = r * apply_metric(p_in - nu) / c.mass + lam - lam_in
+        np.testing.assert_allclose(d, expected_d, atol=1e-8 * r * scale)
+        if beta == 0.0:
+            np.testing.assert_allclose(p, np.minimum(xi + lam_in / r, gap), rtol=1e-12)
+            np.testing.assert_allclose(
+                lam, np.maximum(lam_in + r * (xi - gap), 0.0), rtol=1e-10, atol=1e-6
+            )
+        q_vec.destroy()
+        lq.destroy()
+    finally:
+        projection.destroy()
+        metric.destroy()
+
+
+@pytest.mark.parametrize("scene", [lambda: example3(level=1), tilted_block])
+def test_same_solution_as_the_paper_metric(scene):
+    """Both metrics have the same fixed point; the tilted block exercises the lifting."""
+    problem = scene().problem()
+    with ADMMSolver(problem, rtol=1e-10, max_iter=3000) as solver:  # 3D default: surface
+        assert solver.settings["penalty_metric"] == "surface"
+        surface = solver.solve()
+    with ADMMSolver(problem, rtol=1e-10, max_iter=3000, penalty_metric="mass") as solver:
+        mass = solver.solve()
+    assert surface.kkt.max() <= 1e-8
+    assert rel_diff(_global(problem, surface.u.x.array), _global(problem, mass.u.x.array)) <= 1e-8
+    assert rel_diff(_global(problem, surface.multiplier), _global(problem, mass.multiplier)) <= 1e-6
+    assert surface.iterations < mass.iterations
+
+
+def test_default_matches_snes_vi():
+    """The 3D default against an active-set Newton method (axis-aligned normals)."""
+    problem = example3(level=1).problem()
+    with ADMMSolver(problem, rtol=1e-10) as solver:
+        result = solver.solve()
+    ref = solve_snes_vi(problem)
+    assert rel_diff(_global(problem, result.u.x.array), _global(problem, ref.u.x.array)) <= 1e-8
+    assert result.extra["surface_penalty"]["beta"] > 0.0
+
+
+@serial_only
+@pytest.mark.parametrize("level", [0, 1])
+def test_beta_and_r_against_the_dense_pencil(level):
+    """μ_max from layers and r = 1/sqrt(λ_max μ_max) against all eigenvalues, densely."""
+    import scipy.linalg as sla
+
+    problem = example3(level=level).problem()
+    with ADMMSolver(problem, penalty_tol=1e-8) as solver:
+        info = solver.surface_penalty
+        metric = solver._metric
+        laplacian = metric._rank0["laplacian"]
+        indptr, indices, values = laplacian.getValuesCSR()
+    m = problem.num_contact_nodes
+    L = np.zeros((m, m))
+    for i in range(m):
+        L[i, indices[indptr[i] : indptr[i + 1]]] = values[indptr[i] : indptr[i + 1]]
+    S, mass = rotated_schur(problem)
+    lam = 1.0 / sla.eigh(S, np.diag(mass), eigvals_only=True)
+    assert info.estimate.lambda_max == pytest.approx(lam.max(), rel=1e-6)
+    assert info.k_max_squared == pytest.approx(
+        sla.eigh(L, np.diag(mass), eigvals_only=True).max(), rel=1e-3
+    )
+    mu = 1.0 / sla.eigh(S, np.diag(mass) + info.beta * L, eigvals_only=True)
+    # the point of the metric: a far better conditioned pencil
+    assert mu.max() / mu.min() < lam.max() / lam.min() / 3
+    # layers give μ_max from below, within a few per cent
+    assert 0.95 * mu.max() <= info.mu_max <= mu.max() * (1 + 1e-6)
+    r_best = 1.0 / math.sqrt(mu.min() * mu.max())
+    assert 0.6 <= info.r / r_best <= 1.5
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"penalty": 1e6}, "pass penalty='auto'"),
+        ({"mode": "paper"}, "use mode='accelerated'"),
+        ({"polish": True}, "polish=True exclude each other"),
+    ],
+)
+def test_surface_metric_bad_combinations(kwargs, match):
+    problem = example3(level=0).problem()
+    with pytest.raises(ValueError, match=match):
+        ADMMSolver(problem, penalty_metric="surface", **kwargs)
+
+
+def test_surface_metric_errors_in_2d_and_unknown_metric():
+    problem = example1(h=1 / 8).problem()
+    with pytest.raises(ValueError, match="is for 3D bodies"):
+        ADMMSolver(problem, penalty_metric="surface")
+    with pytest.raises(ValueError, match="penalty_metric must be one of"):
+        ADMMSolver(problem, penalty_metric="h1")
+    with ADMMSolver(problem) as solver:  # 2D: the paper's metric (and polishing)
+        assert solver.settings["penalty_metric"] == "mass"
