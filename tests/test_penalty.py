@@ -137,7 +137,7 @@ def test_auto_penalty_shares_one_symbolic_factorisation(tol, metric):
     assert (surface is not None) == (metric == "surface")
     assert result.penalty == (estimate.r if surface is None else surface.r)
     steps = estimate.details["layer_steps"]
-    extra = surface.details["layer_steps"] if surface else 0
+    extra = 1 if surface else 0  # the layer of μ_max
     if surface and problem.comm.rank == 0:  # step 2's QP: sparse Cholesky on rank 0
         extra += result.extra["projection"]["factorisations"]
     assert (steps > 0) == (tol > 1e-6)
