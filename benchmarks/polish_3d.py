@@ -4,11 +4,12 @@ In 2D the solver polishes by default; in 3D it does not, because polishing needs
 dense Schur complement S_C of A onto the contact *surface*, whose factorisation costs
 more than A + r*NᵀMN's. For each mesh, in one run:
 
-* the 3D default: r* by the iterative estimate, one factorisation of A + r*NᵀMN,
+* the 3D default: r* by the iterative estimate, β and r of the surface metric
+  (:mod:`admm_dolfinx.surface_metric`), one factorisation of A + rNᵀ(M + βL_Γ)N,
   accelerated ADMM to the default tolerance (1e-6);
 * ``polish=True``: one factorisation of A condensed onto Γ_C, which gives r* densely,
   the compliance G and every step-1 solve; ADMM with active-set polishing;
-* a plain linear-elastic solve of A + r*NᵀMN (factorisation + 1 solve);
+* a plain linear-elastic solve of A + rNᵀMN (factorisation + 1 solve, the default's r);
 * on one process, the other exact route to the dense compliance: the C × C block of
   (A + r*NᵀMN)⁻¹ read off the plain factors by MUMPS's selected inverse entries,
   next to what the condensed factorisation costs beyond the plain one.

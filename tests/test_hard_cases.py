@@ -36,7 +36,18 @@ def test_hard_case_converges_with_small_kkt(name):
 
 
 @pytest.mark.parametrize(
-    "name", ["nu=0.49", "nu=0.499", "gap 0", "negative gap", "graded mesh", "distorted mesh"]
+    "name",
+    [
+        "nu=0.49",
+        "nu=0.499",
+        "gap 0",
+        "negative gap",
+        "graded mesh",
+        "distorted mesh",
+        "3D nu=0.499",
+        "3D all of Γ_C active",
+        "3D negative gap",
+    ],
 )
 def test_hard_case_matches_snes_vi(name):
     problem = build_case(name, MPI.COMM_WORLD, small=True).problem()

@@ -1,7 +1,8 @@
 """Hard cases for the stability suite.
 
 Nearly incompressible material, extreme scales, gaps and loads, graded and distorted
-meshes, a floating body and a curved 3D obstacle; each is a
+meshes, a floating body, and in 3D a curved obstacle, ν = 0.499, no contact, the
+whole face in contact and an initial penetration; each is a
 :class:`~admm_dolfinx.scenes.Scene`.
 
 Used by ``tests/test_hard_cases.py`` (small sizes) and ``benchmarks/hard_cases.py``
@@ -11,11 +12,13 @@ Used by ``tests/test_hard_cases.py`` (small sizes) and ``benchmarks/hard_cases.p
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 from mpi4py import MPI
 
 from admm_dolfinx.meshing import global_bounds
+from admm_dolfinx.obstacles import Obstacle, Plane
 from admm_dolfinx.scenes import Scene, example1, example2, example3
 
 __all__ = ["CASES", "build_case", "distort", "grade"]
@@ -56,6 +59,16 @@ def _builtin(small: bool, transform) -> Callable[[MPI.Comm], Scene]:
     return lambda comm: transform(example1(comm, h=1 / 16 if small else 1 / 64, mesher="builtin"))
 
 
+def _e3(small: bool, obstacle: Obstacle | None = None, **kwargs) -> Callable[[MPI.Comm], Scene]:
+    """Example 3 (levels 0 / 2), optionally with another obstacle (a flat punch)."""
+
+    def build(comm: MPI.Comm) -> Scene:
+        scene = example3(comm, level=0 if small else 2, **kwargs)
+        return scene if obstacle is None else replace(scene, obstacle=obstacle)
+
+    return build
+
+
 def _cases(small: bool) -> dict[str, Callable[[MPI.Comm], Scene]]:
     return {
         "nu=0.49": _e1(small, nu=0.49),
@@ -69,7 +82,13 @@ def _cases(small: bool) -> dict[str, Callable[[MPI.Comm], Scene]]:
         "graded mesh": _builtin(small, grade),
         "distorted mesh": _builtin(small, distort),
         "floating body (Hertz)": lambda comm: example2(comm, level=0 if small else 2),
-        "3D curved obstacle": lambda comm: example3(comm, level=0 if small else 2),
+        "3D curved obstacle": _e3(small),
+        "3D nu=0.499": _e3(small, nu=0.499),
+        "3D nothing touches": _e3(small, displacement=-0.05),
+        "3D all of Γ_C active": _e3(small, obstacle=Plane((0.0, 0.0, -0.52), (0.0, 0.0, 1.0))),
+        "3D negative gap": _e3(
+            small, displacement=0.0, obstacle=Plane((0.0, 0.0, -0.49), (0.0, 0.0, 1.0))
+        ),
     }
 
 
