@@ -13,6 +13,11 @@ r = 1/sqrt(μ_min μ_max), and the iterations to relative errors 1e-6 / 1e-8 in 
 the paper's metric (α = 1.6, Anderson 5 at r*), of the surface metric (the default)
 and of the surface metric at the best r.
 
+``--part select`` (serial, 1 min): over-relaxation α and Anderson memory for the
+surface metric, iterations to 1e-6 / 1e-8 summed over Example 3 levels 1-2 and the
+slab and clamped variants at level 1 (the defaults α = 1.6, memory 5 were chosen for
+the paper's metric by ``benchmarks/acceleration.py --select``).
+
 ``--part speed`` (MPI-capable): Example 3 levels 0-3 and the 257k-dof mesh. For each,
 the default (surface metric), the paper's metric with the same acceleration
 (``penalty_metric="mass"``) and the paper's ADMM at r* run until the error reaches
@@ -24,10 +29,11 @@ The reference is ``benchmarks/acceleration.py``'s (SNES VI from a tight ADMM sol
 
     python benchmarks/surface_metric.py                 # both parts (about 25 min)
     python benchmarks/surface_metric.py --part rule     # 3 min
+    python benchmarks/surface_metric.py --part select
     python benchmarks/surface_metric.py --part speed --only "level 3"
     python benchmarks/surface_metric.py --quick         # levels 0-1, Example 3 only
 
-Writes out_benchmarks/surface_metric_rule.csv and surface_metric_speed.csv.
+Writes out_benchmarks/surface_metric_{rule,select,speed,growth}.csv.
 """
 
 from __future__ import annotations
@@ -232,6 +238,32 @@ def speed_rows(name, options):
     return rows
 
 
+def select_grid():
+    """Iterations to 1e-6 / 1e-8 per (α, memory), summed over four meshes."""
+    meshes = [
+        lambda: example3(level=1),
+        lambda: example3(level=2),
+        lambda: block_variant("slab", 1),
+        lambda: block_variant("clamped", 1),
+    ]
+    alphas, memories = (1.0, 1.3, 1.6, 1.8), (0, 3, 5, 10)
+    totals = {(a, k): [0, 0] for a in alphas for k in memories}
+    for build in meshes:
+        problem = build().problem()
+        u_ref, _, _ = reference(problem, True)
+        for (alpha, memory), total in totals.items():
+            trace, *_ = traced_solve(problem, u_ref, alpha=alpha, anderson=memory)
+            for i, target in enumerate(TARGETS):
+                total[i] += trace.iterations_to(target) or 10**6
+        u_ref.destroy()
+        problem.destroy()
+    return [
+        {"α \\ memory": alpha}
+        | {str(k): f"{totals[(alpha, k)][0]} / {totals[(alpha, k)][1]}" for k in memories}
+        for alpha in alphas
+    ]
+
+
 def growth(rows):
     """Iterations of the default per level, and the factor per halving of h."""
     levels = [r for r in rows if r["variant"] == "surface (default)" and "h0" not in r["mesh"]]
@@ -254,7 +286,7 @@ def growth(rows):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--part", choices=["rule", "speed", "both"], default="both")
+    parser.add_argument("--part", choices=["rule", "select", "speed", "both"], default="both")
     parser.add_argument("--quick", action="store_true", help="levels 0-1 of Example 3 only")
     parser.add_argument("--only", default=None, help="speed meshes whose name contains this")
     parser.add_argument("--out", default="out_benchmarks")
@@ -273,6 +305,11 @@ def main():
         if COMM.rank == 0:
             print("\nrule: iterations to 1e-6 / 1e-8 in u\n")
             print_and_save(rows, out / "surface_metric_rule.csv")
+    if args.part == "select" and COMM.size == 1:
+        table = select_grid()
+        if COMM.rank == 0:
+            print("\nselect: iterations to 1e-6 / 1e-8 summed over four meshes\n")
+            print_and_save(table, out / "surface_metric_select.csv")
     if args.part in ("speed", "both"):
         meshes = SPEED_MESHES[:2] if args.quick else SPEED_MESHES
         if args.only:

@@ -8,7 +8,7 @@ py=$1
 mpiexec=$2
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
-parallel=(acceleration acceleration_limit hertz_validation orderings penalty_cost polish_3d)
+parallel=(acceleration acceleration_limit hertz_validation orderings penalty_cost polish_3d surface_metric)
 
 run() {
   echo "== $*"

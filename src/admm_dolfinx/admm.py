@@ -161,12 +161,19 @@ class ADMMResult:
         k = self.kkt
         t = self.timings
         est = self.extra.get("penalty_estimate")
+        surface = self.extra.get("surface_penalty")
         how = (
             f" (r* from λ_min {est['lambda_min']:.4g}, λ_max {est['lambda_max']:.4g}, "
             f"{est['solves']} solves)"
             if est
             else ""
         )
+        if surface:
+            how = (
+                f" in the surface metric r(M + βL_Γ), β = {surface['beta']:.4g} "
+                f"(from r* {est['r']:.6g}: λ_min {est['lambda_min']:.4g}, λ_max "
+                f"{est['lambda_max']:.4g}; μ_max {surface['mu_max']:.4g})"
+            )
         s = self.settings
         lines = [
             f"ADMM {status} in {self.iterations} iterations, r = {self.penalty:.6g}{how}",

@@ -19,9 +19,10 @@ the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r is
   the rest of the body held fixed (stiffer than the body, so a lower bound, which
   grows to μ_max with the layer): two rings (:data:`LAYER_RINGS`). SLEPc solves the
   layer's generalised problem Nᵀ(M + βL_Γ)N x = μ A_L x with a factorisation of A_L.
-* **r = 1 / sqrt(λ_max μ_max).** On the measured meshes this r is 0.66–1.0 times
-  the best one of the dense pencil, and ADMM needs at most one iteration more than
-  at the best (``benchmarks/surface_metric.py``).
+* **r = 1 / sqrt(λ_max μ_max).** On the measured meshes this r is 0.66–0.98 times
+  the best one of the dense pencil, and ADMM needs at most two iterations more than
+  at the best, to either error, sometimes one fewer
+  (``python benchmarks/surface_metric.py --part rule``).
 """
 
 from __future__ import annotations
@@ -49,8 +50,8 @@ logger = get_logger(__name__)
 
 #: Rings of cells of the layer on which μ_max is computed. Its mode is the roughest
 #: pattern at the edge of Γ_C: on every mesh of ``benchmarks/surface_metric.py
-#: --part rule`` two rings give 0.97–1.0 of the whole body's μ_max (four rings, which
-#: cost twice as much, 0.99–1.0); r needs far less (one iteration more for r off by 1.4×).
+#: --part rule`` two rings give 0.95–1.0 of the whole body's μ_max; r needs far less
+#: (ADMM needs about one iteration more for r off by 1.4×); four rings cost a few times more.
 LAYER_RINGS = 2
 #: Eigenvalue tolerance of each layer solve.
 EIGEN_TOL = 1e-3
