@@ -281,3 +281,19 @@ def test_load_step_and_moved_obstacle_reuse_the_surface_metric():
         expected = solver.solve()
     assert rel_diff(_global(problem, moved.u.x.array), _global(problem, expected.u.x.array)) <= 1e-8
     assert moved.extra["max_pressure"] > pushed.extra["max_pressure"] > 0.0
+
+
+def test_no_surface_gradient_falls_back_to_the_paper_metric():
+    """If L_Γ vanished on the contact nodes, β = 0 and r = r*: the paper's ADMM."""
+    from admm_dolfinx import estimate_penalty
+    from admm_dolfinx.surface_penalty import estimate_surface_penalty
+
+    problem = example3(level=0).problem()
+    metric = SurfaceMetric(problem)
+    try:
+        metric._k_max_squared = 0.0
+        estimate = estimate_penalty(problem)
+        info = estimate_surface_penalty(problem, metric, estimate, prefix="fallback_")
+        assert info.beta == 0.0 and info.r == estimate.r
+    finally:
+        metric.destroy()

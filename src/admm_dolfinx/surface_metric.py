@@ -444,7 +444,9 @@ class _ActiveSetQP:
                 return p, mu
             active = guess
         raise RuntimeError(
-            f"the active-set method did not settle in {MAX_ACTIVE_SET_ROUNDS} rounds"
+            f"the active-set method did not settle in {MAX_ACTIVE_SET_ROUNDS} rounds "
+            "(M + βL_Γ is not an M-matrix on this surface mesh); pass "
+            "penalty_metric='mass' to ADMMSolver"
         )
 
     def step(self, xi, lam, p_in, normal, r):

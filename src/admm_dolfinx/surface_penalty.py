@@ -124,8 +124,20 @@ def estimate_surface_penalty(
         RuntimeError: If a layer eigenvalue solve does not converge.
     """
     t0 = time.perf_counter()
+    k2 = metric.k_max_squared
+    if not (math.isfinite(k2) and k2 > 0.0):
+        # no surface gradient on Γ_C (isolated contact nodes): the paper's metric, r*
+        logger.warning("L_Γ vanishes on the contact nodes: β = 0, r = r* (the paper's metric)")
+        return SurfacePenalty(
+            r=estimate.r,
+            beta=0.0,
+            mu_max=estimate.lambda_max,
+            k_max_squared=k2,
+            estimate=estimate,
+            time=time.perf_counter() - t0,
+            details={"layers": 0, "restarts": 0},
+        )
     with Timer("admm_dolfinx: surface penalty"):
-        k2 = metric.k_max_squared
         beta = estimate.condition_number / k2
         matrix = metric.penalty_matrix(beta)
         try:
