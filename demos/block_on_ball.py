@@ -46,6 +46,12 @@ parser.add_argument(
     help="active-set polishing (off by default in 3D): exact, and faster on small meshes",
 )
 parser.add_argument(
+    "--penalty-metric",
+    choices=["auto", "mass", "surface"],
+    default="auto",
+    help="the paper's r M, or r(M + βL_Γ) on the contact surface (auto: surface in 3D)",
+)
+parser.add_argument(
     "--samples",
     type=int,
     default=0,
@@ -75,12 +81,17 @@ say(
     f"{problem.num_contact_nodes} contact nodes, {comm.size} process(es)"
 )
 
-# In 3D the solver does not polish by default: polishing needs the dense Schur
+# In 3D the default penalises in the *surface metric* r(M + βL_Γ): the Laplace–
+# Beltrami stiffness L_Γ of the contact surface weighs rough contact modes more, so
+# ADMM needs about 10 iterations on every level (the paper's metric r M needs 13,
+# 18, 21, 29 on levels 0–3: `benchmarks/surface_metric.py`); `--penalty-metric mass`
+# compares. Step 2 is then a small QP on the contact surface, solved on rank 0.
+#
+# The solver does not polish by default in 3D: polishing needs the dense Schur
 # complement of A onto the contact *surface*, which makes the factorisation 1.4-1.6×
-# dearer. On one process that pays on small meshes (level 2: 1.0 s against 2.2 s,
-# exact, in 2 iterations instead of 21), breaks even at level 3 and loses beyond, and
-# under MPI it is a second factorisation (`benchmarks/polish_3d.py`). `--polish`
-# asks for it.
+# dearer. On one process that pays on small meshes, not on large ones, and under
+# MPI it is a second factorisation (`benchmarks/polish_3d.py`). `--polish` asks for
+# it (in the paper's metric).
 
 penalty = args.penalty if args.penalty == "auto" else float(args.penalty)
 with admm_dolfinx.ADMMSolver(
@@ -90,6 +101,7 @@ with admm_dolfinx.ADMMSolver(
     rtol=args.rtol,
     petsc_options_prefix="block_",
     polish=True if args.polish else None,
+    penalty_metric=args.penalty_metric,
 ) as solver:
     result = solver.solve()
 say(result.summary())

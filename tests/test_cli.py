@@ -55,6 +55,16 @@ def test_run_reports_non_convergence(tmp_path_factory):
     assert json.loads((tmp / "s.json").read_text())["converged"] is False
 
 
+@pytest.mark.parametrize("metric", ["auto", "mass"])
+def test_run_3d_penalty_metric(tmp_path_factory, metric):
+    tmp = _shared_tmp(tmp_path_factory, f"metric_{metric}")
+    argv = ["run", "example3", "--level", "0", "--penalty-metric", metric]
+    assert main([*argv, "--json", str(tmp / "s.json")]) == 0
+    data = json.loads((tmp / "s.json").read_text())
+    assert data["converged"]
+    assert data["settings"]["penalty_metric"] == ("surface" if metric == "auto" else "mass")
+
+
 def test_atomic_directory_leaves_nothing_on_failure(tmp_path_factory):
     tmp = _shared_tmp(tmp_path_factory, "atomic")
     target = tmp / "result"

@@ -61,6 +61,7 @@ def cmd_run(args) -> int:
             rtol=args.rtol,
             max_iter=args.max_iter,
             polish=False if args.no_polish else None,
+            penalty_metric=args.penalty_metric,
             petsc_options_prefix="run_",
         ) as solver:
             result = solver.solve()
@@ -155,6 +156,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="do not finish with active-set polishing (on by default where the Schur "
         "complement onto the contact dofs is at hand: 2D)",
+    )
+    run.add_argument(
+        "--penalty-metric",
+        choices=["auto", "mass", "surface"],
+        default="auto",
+        help="norm of the penalty: the paper's r M, or r(M + βL_Γ) on the contact surface "
+        "(auto: the surface metric in 3D)",
     )
     run.add_argument("--json", help="write a JSON summary to this file")
     run.add_argument(
