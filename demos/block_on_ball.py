@@ -83,9 +83,10 @@ say(
 
 # In 3D the default penalises in the *surface metric* r(M + βL_Γ): the Laplace–
 # Beltrami stiffness L_Γ of the contact surface weighs rough contact modes more, so
-# ADMM needs about 10 iterations on every level (the paper's metric r M needs 13,
-# 18, 21, 29 on levels 0–3: `benchmarks/surface_metric.py`); `--penalty-metric mass`
-# compares. Step 2 is then a small QP on the contact surface, solved on rank 0.
+# ADMM needs 9-11 iterations to an error of 1e-6 on every level (the paper's metric
+# r M needs 13, 18, 21, 29 on levels 0–3: `benchmarks/surface_metric.py`);
+# `--penalty-metric mass` compares. Step 2 is then a small QP on the contact
+# surface, solved on rank 0.
 #
 # The solver does not polish by default in 3D: polishing needs the dense Schur
 # complement of A onto the contact *surface*, which makes the factorisation 1.4-1.6×
