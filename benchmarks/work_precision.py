@@ -2,7 +2,8 @@
 
 Solvers (all on the same discrete problem, serial):
 
-* ``ADMM accelerated``: the package default (r*, α = 1.6, Anderson 5, KKT test);
+* ``ADMM accelerated``: the package default (r*, α = 1.6, Anderson 5, KKT test; in 2D
+  polished, in 3D in the surface metric at its own r);
 * ``ADMM paper r*`` and ``ADMM paper r̄``: Algorithm 2 with the relative-change test;
   r̄ is the best of 10 penalties log-spaced in [r*/10, 10 r*];
 * ``SNES VI``: PETSc's active-set Newton ``vinewtonrsls`` + MUMPS, from zero;
@@ -89,7 +90,11 @@ def error_of(u, u_ref):
 def admm_sweep(problem, u_ref, label, tols, extra_time=0.0, **options):
     points = []
     with admm_dolfinx.ADMMSolver(problem, max_iter=20000, **options) as solver:
-        fixed = (solver.penalty_estimate.time if solver.penalty_estimate else extra_time) + (
+        own = 0.0
+        if solver.penalty_estimate is not None:  # r*, and β and μ_max of the surface metric
+            own = solver.penalty_estimate.time
+            own += solver.surface_penalty.time if solver.surface_penalty else 0.0
+        fixed = (own if solver.penalty_estimate else extra_time) + (
             solver.operator.timings["factorization"]
         )
         for tol in tols:
@@ -147,9 +152,10 @@ def bench(name, scene, out, osqp_ok=True, light=False):
     else:
         ref = solve_snes_vi(problem, tol=1e-11, initial_guess=tight.u.x.petsc_vec)
         u_ref = ref.u.x.array.copy()
-    r_star = tight.penalty
+    # r* itself (in 3D the default penalises at its own r, in the surface metric)
+    r_star = tight.extra["penalty_estimate"]["r"]
     points = admm_sweep(problem, u_ref, "ADMM accelerated", tols)
-    t_r_star = tight.timings["penalty"]  # the paper's ADMM at r* pays for r* too
+    t_r_star = tight.extra["penalty_estimate"]["time"]  # the paper's ADMM pays for r* too
     points += admm_sweep(
         problem, u_ref, "ADMM paper r*", tols, t_r_star, mode="paper", penalty=r_star
     )
