@@ -44,18 +44,14 @@ import math
 from pathlib import Path
 
 import numpy as np
-import ufl
 from acceleration import TARGETS, ErrorTrace, plain_solve_times, reference, say
-from dolfinx import fem
 from mpi4py import MPI
 from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver, Ball, Plane
 from admm_dolfinx.admm import ADMMConvergenceError
-from admm_dolfinx.material import LinearElastic
-from admm_dolfinx.meshing import box
 from admm_dolfinx.operators import PenalisedOperator
-from admm_dolfinx.scenes import Scene, example3
+from admm_dolfinx.scenes import Scene, example3, pressed_block
 
 COMM = MPI.COMM_WORLD
 SPEED_MESHES = [
@@ -69,36 +65,20 @@ SPEED_MESHES = [
 
 def block_variant(kind: str, level: int) -> Scene:
     """Example 3's block with one thing changed (see the module docstring)."""
-    tags = {"bottom": 3, "top": 1, "sides": 4}
     half_depth, h, push = (0.1, 0.15, 0.05) if kind == "slab" else (0.5, 0.3, 0.2)
-    data = box(COMM, (-0.5, -1.0, -half_depth), (0.5, 1.0, half_depth), h, h, level, tags)
-    msh, ft = data.mesh, data.facet_tags
-    material = LinearElastic(1e6, 0.45)
-    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
-    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
-    held = ft.find(tags["top"])
-    if kind == "clamped":
-        held = np.concatenate([held, ft.find(tags["sides"])])
-    dofs = fem.locate_dofs_topological(V, 2, held)
-    bcs = [fem.dirichletbc(np.array([0.0, 0.0, -push]), dofs, V)]
     obstacle = Ball(center=(-0.3, 0.0, -half_depth - 0.5), radius=0.5)
     if kind == "punch":
         obstacle = Plane(point=(0.0, 0.0, -0.55), normal=(0.0, 0.0, 1.0))
-    zero = fem.Constant(msh, np.zeros(3))
-    return Scene(
+    return pressed_block(
+        COMM,
         name=kind,
-        mesh=msh,
-        facet_tags=ft,
-        markers=tags,
-        material=material,
-        V=V,
-        a=material.bilinear_form(u, v),
-        L=ufl.dot(zero, v) * ufl.dx,
-        bcs=bcs,
-        contact_marker=tags["bottom"],
+        level=level,
+        half_depth=half_depth,
+        h_bottom=h,
+        h_top=h,
+        displacement=push,
         obstacle=obstacle,
-        h=h / 2**level,
-        info={},
+        clamp_sides=kind == "clamped",
     )
 
 

@@ -27,7 +27,16 @@ from admm_dolfinx.meshing import (
 from admm_dolfinx.obstacles import Ball, Obstacle, Plane
 from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["SCENES", "Scene", "example1", "example2", "example3", "hertz", "hertz_solution"]
+__all__ = [
+    "SCENES",
+    "Scene",
+    "example1",
+    "example2",
+    "example3",
+    "hertz",
+    "hertz_solution",
+    "pressed_block",
+]
 
 
 @dataclass
@@ -247,17 +256,71 @@ def example3(
         The scene.
     """
     level = check_level("level", level)
+    return pressed_block(
+        comm,
+        name="example3",
+        level=level,
+        half_depth=0.5,
+        h_bottom=h_bottom,
+        h_top=h_top,
+        displacement=displacement,
+        obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
+        E=E,
+        nu=nu,
+    )
+
+
+def pressed_block(
+    comm: MPI.Comm,
+    *,
+    name: str,
+    level: int,
+    half_depth: float,
+    h_bottom: float,
+    h_top: float,
+    displacement: float,
+    obstacle: Obstacle,
+    E: float = 1e6,
+    nu: float = 0.45,
+    clamp_sides: bool = False,
+) -> Scene:
+    """Example 3's block (−0.5, 0.5) × (−1, 1) × (−d, d), its top face moved down.
+
+    The top face is moved by u_D = (0, 0, −displacement) (with ``clamp_sides`` the
+    side faces too); the bottom face z = −d is Γ_C, above ``obstacle``.
+
+    Args:
+        comm: Communicator.
+        name: The scene's name.
+        level: Uniform refinements of the graded level-0 mesh.
+        half_depth: d.
+        h_bottom: Element size of the level-0 mesh on Γ_C.
+        h_top: Element size of the level-0 mesh on the top face.
+        displacement: Downward displacement of the top face.
+        obstacle: The rigid obstacle under Γ_C.
+        E: Young's modulus.
+        nu: Poisson ratio.
+        clamp_sides: Prescribe u_D on the side faces as well, so that Γ_C meets a
+            Dirichlet boundary.
+
+    Returns:
+        The scene.
+    """
     tags = {"bottom": 3, "top": 1, "sides": 4}
-    data = box(comm, (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5), h_bottom, h_top, level, tags)
+    lower, upper = (-0.5, -1.0, -half_depth), (0.5, 1.0, half_depth)
+    data = box(comm, lower, upper, h_bottom, h_top, level, tags)
     msh, facet_tags = data.mesh, data.facet_tags
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
     zero = fem.Constant(msh, np.zeros(3))
-    top = fem.locate_dofs_topological(V, 2, facet_tags.find(tags["top"]))
-    bcs = [fem.dirichletbc(np.array([0.0, 0.0, -displacement]), top, V)]
+    held = facet_tags.find(tags["top"])
+    if clamp_sides:
+        held = np.concatenate([held, facet_tags.find(tags["sides"])])
+    dofs = fem.locate_dofs_topological(V, 2, held)
+    bcs = [fem.dirichletbc(np.array([0.0, 0.0, -displacement]), dofs, V)]
     return Scene(
-        name="example3",
+        name=name,
         mesh=msh,
         facet_tags=facet_tags,
         markers=tags,
@@ -267,7 +330,7 @@ def example3(
         L=ufl.dot(zero, v) * ufl.dx,
         bcs=bcs,
         contact_marker=tags["bottom"],
-        obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
+        obstacle=obstacle,
         h=h_bottom / 2**level,
         info={"E": E, "nu": nu, "displacement": displacement, "level": level},
     )
