@@ -7,18 +7,16 @@ pencil. Runs serially and under ``mpiexec -n 2`` (the dense checks serially only
 """
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
-import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSolver, Ball
 from admm_dolfinx.baselines import solve_snes_vi
-from admm_dolfinx.material import LinearElastic
-from admm_dolfinx.meshing import box
-from admm_dolfinx.scenes import Scene, example1, example3
+from admm_dolfinx.scenes import example1, example3, pressed_block
 from admm_dolfinx.surface_metric import SurfaceMetric
 
 from conftest import rel_diff
@@ -37,41 +35,30 @@ def tilted_block(comm=MPI.COMM_WORLD, angle=0.3, side_z=-0.03):
     The contact nodes on the bottom edges then have a normal with a prescribed (z) and
     a free (x) part, so the penalty's Dirichlet lifting is not zero.
     """
-    tags = {"bottom": 3, "top": 1, "sides": 4}
-    data = box(comm, (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5), 0.3, 0.3, 0, tags)
-    msh, ft = data.mesh, data.facet_tags
     c, s = math.cos(angle), math.sin(angle)
     rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    scene = pressed_block(
+        comm,
+        name="tilted block",
+        level=0,
+        half_depth=0.5,
+        h_bottom=0.3,
+        h_top=0.3,
+        displacement=0.2,
+        obstacle=Ball(center=rotation @ np.array([-0.3, 0.0, -1.0]), radius=0.5),
+    )
+    msh, ft, tags, V = scene.mesh, scene.facet_tags, scene.markers, scene.V
     msh.geometry.x[:] = msh.geometry.x @ rotation.T
-    material = LinearElastic(1e6, 0.45)
-    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
-    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
     top = fem.locate_dofs_topological(V, 2, ft.find(tags["top"]))
-    push = rotation @ np.array([0.0, 0.0, -0.2])
     Vz, _ = V.sub(2).collapse()
     sides = fem.locate_dofs_topological((V.sub(2), Vz), 2, ft.find(tags["sides"]))
     side_value = fem.Function(Vz)
     side_value.x.array[:] = side_z
     bcs = [
-        fem.dirichletbc(push, top, V),
+        fem.dirichletbc(rotation @ np.array([0.0, 0.0, -0.2]), top, V),
         fem.dirichletbc(side_value, sides, V.sub(2)),
     ]
-    zero = fem.Constant(msh, np.zeros(3))
-    return Scene(
-        name="tilted block",
-        mesh=msh,
-        facet_tags=ft,
-        markers=tags,
-        material=material,
-        V=V,
-        a=material.bilinear_form(u, v),
-        L=ufl.dot(zero, v) * ufl.dx,
-        bcs=bcs,
-        contact_marker=tags["bottom"],
-        obstacle=Ball(center=rotation @ np.array([-0.3, 0.0, -1.0]), radius=0.5),
-        h=0.3,
-        info={},
-    )
+    return replace(scene, bcs=bcs)
 
 
 def test_laplace_beltrami_energy_of_linear_functions():
