@@ -6,7 +6,9 @@ For each problem, in one run and side by side:
   2D the condensed factorisation of A, in 3D the iterative method's);
 * ``admm``: ``ADMMSolver(problem, penalty=r*, mode="paper").solve()`` standalone
   (its factorisation of A + r*NᵀMN included), and the same in accelerated mode
-  (α = 1.6, Anderson 5, without polishing: the same iteration at both penalties);
+  (α = 1.6, Anderson 5, without polishing: the same iteration at both penalties),
+  all in the paper's metric r M (the 3D default's surface metric adds β and μ_max to
+  r*: ``benchmarks/surface_metric.py`` times it);
 * ``auto``: the same two with ``penalty="auto"`` (the default), where r* and the ADMM
   share factorisations: in 2D one condensed factorisation serves both, in 3D the
   symbolic one is shared.
@@ -57,7 +59,9 @@ def measure(name, scene, repeat):
     def solver(mode, penalty):
         def run():
             # no polishing: it needs S_C, which only the auto solve would have at hand
-            with admm_dolfinx.ADMMSolver(problem, penalty=penalty, mode=mode, polish=False) as admm:
+            with admm_dolfinx.ADMMSolver(
+                problem, penalty=penalty, mode=mode, polish=False, penalty_metric="mass"
+            ) as admm:
                 return admm.solve()
 
         return run
