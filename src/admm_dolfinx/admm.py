@@ -40,7 +40,8 @@ Stopping tests:
 * ``"kkt"`` (default): the scaled fixed-point residual ‖T(z) − z‖_W / ‖T(z)‖_W and the
   relative KKT residuals of (u, λ⁺) - penetration, complementarity and equilibrium -
   are all ≤ ``rtol``. The equilibrium residual comes from the identity
-  A u − f + NᵀMλ⁺ = NᵀM (r(p − Nu) + λ⁺ − λ), so it costs no extra matrix product.
+  A u − f + NᵀMλ⁺ = NᵀM (r(p − Nu) + λ⁺ − λ) (in the surface metric
+  M⁻¹R(p − Nu) replaces r(p − Nu)), so it costs no extra matrix product.
   W weighs p by M and λ by M/r², so both parts are displacements.
 * ``"change"`` (the paper's): the relative changes of u and p⁺ are ≤ ``rtol``.
 
