@@ -264,8 +264,8 @@ class ADMMSolver:
             processes: under MPI a private condensed factorisation serves r* and the
             polisher), or with ``condensed=True``; ``True``: always (computing S_C if
             need be: in 3D it is dense on a surface, which makes the factorisation
-            1.4–1.6× dearer: on one process 2–5× faster overall up to 557 contact
-            nodes, break-even at 2137, slower above, and slower under MPI, where it
+            1.4–1.6× dearer: on one process 3–5× faster than the 3D default up to
+            557 contact nodes, slower from 2137 on, and slower under MPI, where it
             is a second factorisation; ``benchmarks/polish_3d.py``); ``False``:
             never. Paper mode never polishes.
         penalty_metric: The norm of the penalty term (:mod:`admm_dolfinx.surface_metric`):
