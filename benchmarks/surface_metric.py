@@ -52,6 +52,7 @@ from admm_dolfinx import ADMMSolver, Ball, Plane
 from admm_dolfinx.admm import ADMMConvergenceError
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.scenes import Scene, example3, pressed_block
+from admm_dolfinx.surface_metric import SurfaceMetric
 
 COMM = MPI.COMM_WORLD
 SPEED_MESHES = [
@@ -136,10 +137,7 @@ def rule_row(name, scene):
     trace_mass, *_ = traced_solve(problem, u_ref, penalty_metric="mass")
     trace_default, _, info = traced_solve(problem, u_ref)
     T = dense_compliance(problem)
-    indptr, indices, values = info_laplacian(problem)
-    L = np.zeros_like(T)
-    for i in range(L.shape[0]):
-        L[i, indices[indptr[i] : indptr[i + 1]]] = values[indptr[i] : indptr[i + 1]]
+    L = dense_laplacian(problem)
     lam = symmetric_eigenvalues(T, np.diag(c.mass))
     mu = symmetric_eigenvalues(T, np.diag(c.mass) + info.beta * L)
     r_best = 1.0 / math.sqrt(mu.min() * mu.max())
@@ -162,13 +160,11 @@ def rule_row(name, scene):
     return row
 
 
-def info_laplacian(problem):
-    """L_Γ on the contact nodes (serial order) as CSR arrays, from a default solver."""
-    from admm_dolfinx.surface_metric import SurfaceMetric
-
+def dense_laplacian(problem):
+    """L_Γ on the contact nodes (serial order), dense."""
     metric = SurfaceMetric(problem)
     try:
-        return metric._rank0["laplacian"].getValuesCSR()
+        return metric.dense_laplacian()
     finally:
         metric.destroy()
 

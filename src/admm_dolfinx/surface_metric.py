@@ -174,6 +174,19 @@ class SurfaceMetric(PetscOwner):
             scaled.destroy()
             scale.destroy()
 
+    def dense_laplacian(self) -> npt.NDArray[np.float64] | None:
+        """L_Γ on the contact nodes in rank order, dense, on rank 0 (None elsewhere).
+
+        For dense checks of the metric (tests, ``benchmarks/surface_metric.py``).
+        """
+        if self._rank0 is None:
+            return None
+        dense = self._rank0["laplacian"].convert("dense", out=None)
+        try:
+            return dense.getDenseArray().copy()
+        finally:
+            dense.destroy()
+
     def penalty_matrix(self, beta: float) -> PETSc.Mat:
         """Nᵀ(M + βL_Γ)N = K + β Nᵀ L_Γ N, in A's sparsity pattern (caller destroys it)."""
         problem = self.problem
