@@ -53,7 +53,7 @@ logger = get_logger(__name__)
 #: Rings of cells of the layer on which μ_max is computed. Its mode is the roughest
 #: pattern at the edge of Γ_C: on every mesh of ``benchmarks/surface_metric.py
 #: --part rule`` two rings give 0.95–1.0 of the whole body's μ_max, which moves r by
-#: at most 2.6 %; r itself is 0.93–1.39 of the best there. Four rings cost more.
+#: at most 2.7 %; r itself is 0.93–1.39 of the best there. Four rings cost more.
 LAYER_RINGS = 2
 #: μ_min / λ_max assumed for r (measured 0.41–0.97: see the module docstring).
 MU_MIN_FRACTION = 0.5
