@@ -38,7 +38,7 @@ import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 
-from admm_dolfinx.output import atomic_directory, write_json
+from admm_dolfinx.output import output_folder, write_json
 from admm_dolfinx.plotting import plot_contact_pressure
 
 parser = argparse.ArgumentParser(description="Load steps: a block pressed onto a cylinder")
@@ -151,9 +151,9 @@ say(
     f"scratch; |u - u_scratch| / |u| <= {worst:.1e} (both stop at rtol 1e-6)"
 )
 
-# ## Output, written whole or not at all
+# ## Output: only these files, each written whole or not at all
 
-with atomic_directory(comm, args.out) as folder:
+with output_folder(comm, args.out) as folder:
     summary = {"r": solver.penalty, "setup_time": t_setup, "steps": rows}
     write_json(comm, folder / "steps.json", summary)
     plot_contact_pressure(

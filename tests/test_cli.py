@@ -7,7 +7,7 @@ import pytest
 from mpi4py import MPI
 
 from admm_dolfinx.cli import main
-from admm_dolfinx.output import atomic_directory, write_json
+from admm_dolfinx.output import output_folder, write_json
 
 
 def _shared_tmp(tmp_path_factory, name):
@@ -65,15 +65,14 @@ def test_run_3d_penalty_metric(tmp_path_factory, metric):
     assert data["settings"]["penalty_metric"] == ("surface" if metric == "auto" else "mass")
 
 
-def test_atomic_directory_leaves_nothing_on_failure(tmp_path_factory):
+def test_output_folder_writes_nothing_on_failure(tmp_path_factory):
     tmp = _shared_tmp(tmp_path_factory, "atomic")
     target = tmp / "result"
-    with pytest.raises(RuntimeError), atomic_directory(MPI.COMM_WORLD, target) as folder:
+    with pytest.raises(RuntimeError), output_folder(MPI.COMM_WORLD, target) as folder:
         (folder / f"part{MPI.COMM_WORLD.rank}.txt").write_text("half")
         raise RuntimeError("interrupted")
     MPI.COMM_WORLD.Barrier()
-    assert not target.exists()
-    assert list(tmp.iterdir()) == []
+    assert list(target.iterdir()) == []  # the folder is created up front, left empty
 
 
 def test_help_lists_commands(capsys):
@@ -93,7 +92,7 @@ def test_unwritable_output_is_a_clear_error_on_every_rank(tmp_path_factory):
         blocker.write_text("not a folder")
     MPI.COMM_WORLD.Barrier()
     with pytest.raises(OSError, match=r"a_file/out.*writable"):
-        with atomic_directory(MPI.COMM_WORLD, blocker / "out"):
+        with output_folder(MPI.COMM_WORLD, blocker / "out"):
             pass
     with pytest.raises(OSError, match=r"a_file/s\.json.*writable"):
         write_json(MPI.COMM_WORLD, blocker / "s.json", {"a": 1})
@@ -101,21 +100,19 @@ def test_unwritable_output_is_a_clear_error_on_every_rank(tmp_path_factory):
     assert sorted(p.name for p in tmp.iterdir()) == ["a_file"]
 
 
-def test_atomic_directory_fails_on_every_rank_when_one_rank_fails(tmp_path_factory):
-    """A block that fails on one rank only: that rank raises its error, the others a
-    RuntimeError (so that none goes on to wait at a later collective call); nothing is
-    written."""
+def test_output_folder_fails_on_every_rank_when_one_rank_fails(tmp_path_factory):
+    """A block that fails on one rank only: every rank raises that error (so that none
+    goes on to wait at a later collective call); nothing is written."""
     tmp = _shared_tmp(tmp_path_factory, "one_rank")
     target = tmp / "result"
     last = MPI.COMM_WORLD.size - 1
-    expected = ValueError if MPI.COMM_WORLD.rank == last else RuntimeError
-    with pytest.raises(expected), atomic_directory(MPI.COMM_WORLD, target) as folder:
-        (folder / f"part{MPI.COMM_WORLD.rank}.txt").write_text("whole")
-        if MPI.COMM_WORLD.rank == last:
-            raise ValueError("this rank's plot failed")
+    with pytest.raises(ValueError, match="plot failed"):
+        with output_folder(MPI.COMM_WORLD, target) as folder:
+            (folder / f"part{MPI.COMM_WORLD.rank}.txt").write_text("whole")
+            if MPI.COMM_WORLD.rank == last:
+                raise ValueError("this rank's plot failed")
     MPI.COMM_WORLD.Barrier()
-    assert not target.exists()
-    assert list(tmp.iterdir()) == []
+    assert list(target.iterdir()) == []
 
 
 def test_cli_unwritable_output_is_an_error_message(tmp_path_factory, capsys):

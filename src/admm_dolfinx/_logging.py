@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import warnings
 
 from mpi4py import MPI
 
@@ -27,3 +28,13 @@ def get_logger(name: str) -> logging.Logger:
     if not any(isinstance(f, _RankZeroFilter) for f in logger.filters):
         logger.addFilter(_RankZeroFilter())
     return logger
+
+
+class ContactWarning(UserWarning):
+    """A suspicious but solvable input (e.g. an obstacle no contact node can reach)."""
+
+
+def warn(message: str, category: type[Warning] = ContactWarning) -> None:
+    """Issue ``warnings.warn(message)`` on rank 0 of ``COMM_WORLD`` only (once per rank set)."""
+    if MPI.COMM_WORLD.rank == 0:
+        warnings.warn(message, category, stacklevel=3)

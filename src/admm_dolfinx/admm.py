@@ -48,17 +48,22 @@ Stopping tests:
 ``mode="paper"`` is the paper's algorithm: α = 1, no acceleration, the relative-change
 test at ``rtol = 1e-5`` (which reproduces its iteration counts).
 
-After the loop the relative KKT residuals are recomputed independently
-(:mod:`admm_dolfinx.kkt`) and stored in the result.
+When the stopping test is met, the relative KKT residuals are recomputed
+independently from (u, λ) (:mod:`admm_dolfinx.kkt`): the solve has converged only if
+they are ≤ ``kkt_tol`` too. The loop's own residuals rest on identities that assume
+exact step-1 solves; the recomputed ones do not.
 
-Failure policy: a solve that reaches ``max_iter`` raises :class:`ADMMConvergenceError`;
-the partial result is attached to the exception as ``err.result``. A returned result
-is always a converged one.
+Failure policy: a solve that does not converge raises :class:`ADMMConvergenceError`,
+with the partial result attached as ``err.result`` and its ``status`` saying why
+(``"max_iter"``, ``"inaccurate"``: a met test with KKT residuals above ``kkt_tol``,
+``"inexact_step1"``). A returned result is a converged one, except a stop asked for by
+the callback, which says so (``status="callback"``, ``converged=False``).
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -72,7 +77,9 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
+from admm_dolfinx._mpi import agree, collective_call
 from admm_dolfinx.anderson import AndersonMixer, weighted_norm
+from admm_dolfinx.checks import check_finite
 from admm_dolfinx.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.kkt import KKTResiduals, _ratio, compute_kkt_residuals, gap_residuals
 from admm_dolfinx.operators import PenalisedOperator
@@ -93,6 +100,11 @@ logger = get_logger(__name__)
 PAPER_RTOL = 1e-5
 #: Default tolerance of the KKT / fixed-point-residual test.
 DEFAULT_RTOL = 1e-6
+#: Default ``kkt_tol`` with the relative-change test: that test bounds the changes of
+#: u and p, not the residuals, which it leaves larger (``python -m admm_dolfinx.cli
+#: reproduce`` reports them); a stagnated iteration (an r far too small or large) is
+#: far above it.
+CHANGE_TEST_KKT_TOL = 1e-3
 #: Defaults of the accelerated mode, chosen by ``benchmarks/acceleration.py``.
 DEFAULT_ALPHA = 1.6
 DEFAULT_ANDERSON = 5
@@ -113,8 +125,16 @@ class ADMMResult:
     Attributes:
         u: Displacement, a Function on the problem's space.
         pressure: Contact pressure λ ≥ 0 as a P1 scalar Function, zero off Γ_C.
-        converged: Whether the stopping test was met (always True for a returned
-            result; False only on the result attached to an ADMMConvergenceError).
+        converged: Whether the solve converged: the stopping test was met *and* the
+            relative KKT residuals recomputed from (u, λ) after the loop (:attr:`kkt`)
+            are at most the solver's ``kkt_tol``. True for every returned result
+            except a callback stop.
+        status: ``"converged"``; ``"callback"`` (the callback asked to stop: returned
+            with ``converged=False``); on the result attached to an
+            :class:`ADMMConvergenceError`: ``"max_iter"`` (the test was not met),
+            ``"inaccurate"`` (the test was met but the recomputed KKT residuals exceed
+            ``kkt_tol``: the iteration stagnated) or ``"inexact_step1"`` (the step-1
+            solves are not exact enough for the loop's residual identity).
         iterations: Number of ADMM iterations (= step-1 solves, rejected Anderson
             steps included).
         penalty: The penalty parameter r that was used.
@@ -131,8 +151,8 @@ class ADMMResult:
         multiplier: λ at the owned contact nodes (local array).
         num_active: Global number of contact nodes with λ > 0.
         num_contact_nodes: Global number m of contact nodes.
-        settings: The solver settings (mode, alpha, anderson, stopping, rtol,
-            max_iter, polish) and ``stopped_by``.
+        settings: The solver settings (mode, alpha, anderson, stopping, rtol, kkt_tol,
+            max_iter, polish, penalty_metric).
         extra: ``max_pressure``, the ``penalty_estimate`` (as a dict) if any,
             ``polish`` (None when off; else ``polished_at``, the iteration that
             evaluated the polished state or None, ``attempts``, ``rounds`` (dense
@@ -146,6 +166,7 @@ class ADMMResult:
     u: fem.Function
     pressure: fem.Function
     converged: bool
+    status: str
     iterations: int
     penalty: float
     history: dict[str, list[float]]
@@ -164,7 +185,13 @@ class ADMMResult:
 
     def summary(self) -> str:
         """A short human-readable report (what the demos print)."""
-        status = "converged" if self.converged else "NOT CONVERGED"
+        status = {
+            "converged": "converged",
+            "callback": "stopped by the callback (not converged)",
+            "max_iter": "NOT CONVERGED (iteration limit)",
+            "inaccurate": "NOT CONVERGED (stagnated: KKT residuals above tolerance)",
+            "inexact_step1": "NOT CONVERGED (inexact step-1 solves)",
+        }.get(self.status, self.status)
         k = self.kkt
         t = self.timings
         est = self.extra.get("penalty_estimate")
@@ -186,7 +213,8 @@ class ADMMResult:
             f"ADMM {status} in {self.iterations} iterations, r = {self.penalty:.6g}{how}",
             f"  {s.get('mode', '')} mode: alpha {s.get('alpha')}, Anderson memory "
             f"{s.get('anderson')}, polish {'on' if s.get('polish') else 'off'}, stopping "
-            f"'{s.get('stopping')}' at rtol {s.get('rtol'):g}",
+            f"'{s.get('stopping')}' at rtol {s.get('rtol'):g} (KKT checked at "
+            f"{s.get('kkt_tol'):g})",
             f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
             f"  max pressure = {self.extra.get('max_pressure', float('nan')):.6g}",
             "  KKT residuals (relative): "
@@ -217,6 +245,13 @@ class ADMMConvergenceError(RuntimeError):
     def __init__(self, message: str, result: ADMMResult):
         super().__init__(message)
         self.result = result
+
+
+def _real(name: str, value: Any) -> float:
+    """``value`` as a float if it is a real number (NumPy scalars included), else raise."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {value!r}.")
+    return float(value)
 
 
 def _check_penalty(r: Any) -> float:
@@ -276,6 +311,12 @@ class ADMMSolver:
             paper mode, not with polishing); ``"auto"`` (default): ``"surface"``
             where it applies, i.e. in 3D with ``penalty="auto"``, the accelerated
             mode and no polishing, else ``"mass"``.
+        kkt_tol: Tolerance of the final check: after the stopping test is met, the
+            relative KKT residuals of (u, λ) are recomputed independently
+            (:func:`~admm_dolfinx.kkt.compute_kkt_residuals`), and the solve has
+            converged only if they are all ≤ ``kkt_tol``. Default: ``rtol`` with the
+            ``"kkt"`` test (which it then confirms); with the ``"change"`` test, whose
+            relative changes do not bound the residuals, ``1e-3``.
 
     Raises:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
@@ -313,6 +354,7 @@ class ADMMSolver:
         condensed: bool | None = None,
         polish: bool | None = None,
         penalty_metric: str = "auto",
+        kkt_tol: float | None = None,
     ):
         if not isinstance(problem, ContactProblem):
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
@@ -321,24 +363,36 @@ class ADMMSolver:
             rtol = PAPER_RTOL if rtol is None else rtol
         elif mode != "accelerated":
             raise ValueError(f"mode must be 'accelerated' or 'paper', got {mode!r}.")
-        rtol = DEFAULT_RTOL if rtol is None else float(rtol)
+        rtol = DEFAULT_RTOL if rtol is None else _real("rtol", rtol)
         if not (math.isfinite(rtol) and rtol > 0.0):
             raise ValueError(f"rtol must be a positive finite number, got {rtol!r}.")
         if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer):
             raise TypeError(f"max_iter must be an int, got {max_iter!r}.")
         if max_iter < 1:
             raise ValueError(f"max_iter must be at least 1, got {max_iter}.")
-        alpha = float(alpha)
+        alpha = _real("alpha", alpha)
         if not 0.0 < alpha < 2.0:
             raise ValueError(f"alpha (over-relaxation) must lie in (0, 2), got {alpha}.")
         if isinstance(anderson, bool) or not isinstance(anderson, int | np.integer):
             raise TypeError(f"anderson (memory) must be an int, got {anderson!r}.")
         if anderson < 0:
             raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
-        if not (isinstance(penalty_tol, int | float) and 0.0 < penalty_tol < 1.0):
+        penalty_tol = _real("penalty_tol", penalty_tol)
+        if not 0.0 < penalty_tol < 1.0:
             raise ValueError(f"penalty_tol must lie in (0, 1), got {penalty_tol!r}.")
         if stopping not in _STOPPING:
             raise ValueError(f"stopping must be one of {_STOPPING}, got {stopping!r}.")
+        if kkt_tol is None:
+            kkt_tol = rtol if stopping == "kkt" else CHANGE_TEST_KKT_TOL
+        kkt_tol = _real("kkt_tol", kkt_tol)
+        if not (math.isfinite(kkt_tol) and kkt_tol > 0.0):
+            raise ValueError(f"kkt_tol must be a positive finite number, got {kkt_tol!r}.")
+        if stopping == "kkt" and kkt_tol < rtol:
+            raise ValueError(
+                f"kkt_tol = {kkt_tol:g} is below rtol = {rtol:g}: with the 'kkt' stopping "
+                "test the loop stops at rtol, so the final check could never pass. Lower "
+                "rtol instead."
+            )
         if penalty_metric not in _METRICS:
             raise ValueError(f"penalty_metric must be one of {_METRICS}, got {penalty_metric!r}.")
         for name, value in (("condensed", condensed), ("polish", polish)):
@@ -366,6 +420,8 @@ class ADMMSolver:
         self.alpha = alpha
         self.anderson = int(anderson)
         self.stopping = stopping
+        self.kkt_tol = kkt_tol
+        self._petsc_options = dict(petsc_options or {})
         self.prefix = petsc_options_prefix or unique_prefix("admm_")
         # S_C, the Schur complement of A onto the contact dofs, gives r* exactly (2D)
         # and polishing; solving with it (condensed) needs one process
@@ -484,6 +540,7 @@ class ADMMSolver:
             "anderson": self.anderson,
             "stopping": self.stopping,
             "rtol": self.rtol,
+            "kkt_tol": self.kkt_tol,
             "max_iter": self.max_iter,
             "polish": self.polish,
             "penalty_metric": "mass" if self._projection is None else "surface",
@@ -504,6 +561,12 @@ class ADMMSolver:
                 "`warm_start` must be an ADMMResult of this problem (same displacement "
                 "space and contact nodes), e.g. the result of the previous load step."
             )
+        check_finite(
+            problem.comm,
+            np.concatenate([previous.u.x.array, np.asarray(previous.multiplier)]),
+            "The warm start (its displacement and contact pressure)",
+            "Start from a converged result, or without warm_start.",
+        )
         previous.u.x.petsc_vec.copy(u_start)
         p = np.minimum(problem.apply_normal(u_start), problem.contact.gap)
         return np.concatenate([p, np.maximum(previous.multiplier, 0.0)])
@@ -517,21 +580,25 @@ class ADMMSolver:
         """Run ADMM from u⁰ = 0, λ⁰ = 0, p⁰ = min(0, g), or from an earlier result.
 
         Args:
-            callback: Called after every iteration as ``callback(k, u, λ)`` (collective;
-                u is the displacement vector, λ the local multiplier). If it returns
-                True the iteration stops there and the result is returned with
-                ``settings["stopped_by"] == "callback"`` (benchmarks use this to stop
-                at a given error against a reference).
+            callback: Called after every iteration as ``callback(k, u, λ)`` on every
+                rank (u is the displacement vector, λ the local multiplier). If it
+                returns True on any rank, the iteration stops there and the result is
+                returned with ``status="callback"`` and ``converged=False`` (benchmarks
+                use this to stop at a given error against a reference). If it raises on
+                any rank, every rank raises.
             warm_start: A result of this problem (e.g. the previous load step, after
                 :meth:`ContactProblem.update_load` or ``update_obstacle``): ADMM starts
                 from its u, its λ and p⁰ = min(N u, g) with the current gap g.
 
         Returns:
-            The converged result.
+            The converged result (or a callback's stop).
 
         Raises:
-            ADMMConvergenceError: If the stopping test is not met within ``max_iter``
-                iterations (the partial result is ``err.result``).
+            ADMMConvergenceError: If the solve did not converge: the stopping test was
+                not met within ``max_iter`` iterations, or it was met but the KKT
+                residuals recomputed after the loop exceed ``kkt_tol`` (the partial
+                result is ``err.result``; its ``status`` says which).
+            ValueError: If the warm start, the load or the obstacle is not usable.
             RuntimeError: If a linear solve fails, or the solver or its problem has
                 been destroyed.
         """
@@ -548,6 +615,7 @@ class ADMMSolver:
             )
         if problem.sync_load():  # L's data or the Dirichlet values changed since
             logger.info("ADMM: the load data changed; reassembled the load")
+        problem.check_obstacle_unchanged()
         c = problem.contact
         r, alpha = self.penalty, self.alpha
         g = c.gap
@@ -594,8 +662,8 @@ class ADMMSolver:
             "accelerated",
         )
         history: dict[str, list[float]] = {key: [] for key in keys}
-        converged = False
-        stopped_by = "test"
+        status = "max_iter"
+        kkt: KKTResiduals | None = None
         iterations = 0
         accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
         proposal = _PLAIN  # what z is: a plain step, or an Anderson or polished proposal
@@ -674,10 +742,22 @@ class ADMMSolver:
                         done = du <= self.rtol and dp <= self.rtol
                     else:
                         done = max(fpr, feas, comp, eq) <= self.rtol
-                    if callback is not None and callback(k, x, lam):
-                        done, stopped_by = True, "callback"
                     if done:
-                        converged = True
+                        # the test's residuals come from identities that assume exact
+                        # step-1 solves: confirm them independently before stopping
+                        kkt = compute_kkt_residuals(problem, x, lam)
+                        status = self._verdict(kkt, eq)
+                        if status != "continue":
+                            break
+                        logger.info(
+                            "ADMM %4d: the test was met, but the recomputed KKT residual "
+                            "%.2e exceeds kkt_tol: going on",
+                            k,
+                            kkt.max(),
+                        )
+                        kkt = None
+                    if callback is not None and self._ask_callback(callback, k, x, lam):
+                        status = "callback"
                         break
                     if rejected:
                         z, proposal = accepted[0].copy(), _PLAIN  # the plain step instead
@@ -700,7 +780,8 @@ class ADMMSolver:
             u.x.scatter_forward()
 
             t0 = time.perf_counter()
-            kkt = compute_kkt_residuals(problem, x, lam)
+            if kkt is None:
+                kkt = compute_kkt_residuals(problem, x, lam)
             t_kkt = time.perf_counter() - t0
         finally:
             for vec in (x_old, b0, b):
@@ -726,10 +807,12 @@ class ADMMSolver:
             + time.perf_counter()
             - t_start
         )
+        converged = status == "converged"
         result = ADMMResult(
             u=u,
             pressure=pressure,
             converged=converged,
+            status=status,
             iterations=iterations,
             penalty=r,
             history=history,
@@ -738,7 +821,7 @@ class ADMMSolver:
             multiplier=lam,
             num_active=history["active"][-1],
             num_contact_nodes=c.num_global,
-            settings=self.settings | {"stopped_by": stopped_by},
+            settings=self.settings,
             extra={
                 "max_pressure": problem.global_norm(lam, np.inf),
                 "penalty_estimate": self.penalty_estimate.as_dict()
@@ -760,18 +843,77 @@ class ADMMSolver:
         result.extra["warning"] = self._slow_convergence_warning(history, converged)
         if result.extra["warning"]:
             logger.warning("%s", result.extra["warning"])
-        if not converged:
-            raise ADMMConvergenceError(
-                f"ADMM did not converge in {self.max_iter} iterations at r = {r:.6g} "
-                f"({self.stopping!r} test at rtol = {self.rtol:.1e}; last residuals: fpr "
-                f"{history['fpr'][-1]:.2e}, equilibrium {history['equilibrium'][-1]:.2e}, "
-                f"du {history['du'][-1]:.2e}, dp {history['dp'][-1]:.2e}). Increase "
-                "max_iter, or use penalty='auto' if r was set by hand (a poor r slows "
-                "ADMM down). The partial result is attached as `err.result`.",
-                result,
-            )
+        if status not in ("converged", "callback"):
+            raise ADMMConvergenceError(self._failure_message(result), result)
         logger.info("%s", result.summary())
         return result
+
+    # ------------------------------------------------------------------ verdicts
+    def _verdict(self, kkt: KKTResiduals, loop_equilibrium: float) -> str:
+        """What a met stopping test means, given the KKT residuals recomputed from (u, λ).
+
+        Returns:
+            ``"converged"``; ``"continue"`` (the loop's residuals and the recomputed
+            ones differ by their definitions only: iterate on); ``"inexact_step1"``
+            (the equilibrium identity of the loop is off: the step-1 solves are not
+            exact); ``"inaccurate"`` (the change test stopped a stagnated iteration).
+        """
+        if kkt.max() <= self.kkt_tol:
+            return "converged"
+        if kkt.equilibrium > 10.0 * max(self.kkt_tol, loop_equilibrium):
+            return "inexact_step1"
+        return "inaccurate" if self.stopping == "change" else "continue"
+
+    def _ask_callback(self, callback, k: int, x: PETSc.Vec, lam: np.ndarray) -> bool:
+        """The user's callback on every rank; True if any rank asks to stop; collective."""
+        answer = collective_call(self.problem.comm, lambda: callback(k, x, lam), "The callback")
+        stop, unanimous = agree(self.problem.comm, bool(answer))
+        if stop and not unanimous:
+            logger.warning("ADMM: the callback asked to stop on some ranks only; stopping.")
+        return stop
+
+    def _failure_message(self, result: ADMMResult) -> str:
+        """Why a solve did not converge, and what to do about it."""
+        k, h, r = result.kkt, result.history, self.penalty
+        residuals = (
+            f"KKT residuals recomputed from (u, λ): penetration {k.primal_feasibility:.2e}, "
+            f"complementarity {k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}"
+        )
+        hand = self.penalty_estimate is None and self.surface_penalty is None
+        if result.status == "inexact_step1":
+            return (
+                f"ADMM's stopping test was met after {result.iterations} iterations, but the "
+                f"equilibrium residual recomputed from (u, λ) is {k.equilibrium:.2e} where "
+                f"the iteration's identity gives {h['equilibrium'][-1]:.2e}: the step-1 "
+                f"solves are not exact (petsc_options {self._petsc_options}). Use the "
+                "default factorisation, or tighten the iterative solver (ksp_rtol ≤ 1e-10). "
+                "The partial result is attached as `err.result`."
+            )
+        if result.status == "inaccurate":
+            return (
+                f"ADMM's relative-change test was met after {result.iterations} iterations "
+                f"at r = {r:.6g}, but the iteration had stagnated, not converged: {residuals}, "
+                f"above kkt_tol = {self.kkt_tol:g}. "
+                + (
+                    "r set by hand is far from the balanced penalty: use penalty='auto'. "
+                    if hand
+                    else "Use the 'kkt' stopping test (mode='accelerated'). "
+                )
+                + "The partial result is attached as `err.result`."
+            )
+        advice = (
+            "use penalty='auto' (r set by hand is the usual cause of a slow ADMM), or "
+            "increase max_iter"
+            if hand
+            else "increase max_iter"
+        )
+        return (
+            f"ADMM did not converge in {self.max_iter} iterations at r = {r:.6g} "
+            f"({self.stopping!r} test at rtol = {self.rtol:.1e}; last residuals: fpr "
+            f"{h['fpr'][-1]:.2e}, equilibrium {h['equilibrium'][-1]:.2e}, du "
+            f"{h['du'][-1]:.2e}, dp {h['dp'][-1]:.2e}; {residuals}): {advice}. The partial "
+            "result is attached as `err.result`."
+        )
 
     def _slow_convergence_warning(self, history: dict, converged: bool) -> str:
         """A loud note when the iteration was slow, with its observed contraction."""
@@ -808,9 +950,3 @@ class ADMMSolver:
 
     def __exit__(self, *exc) -> None:
         self.destroy()
-
-    def __del__(self):
-        try:
-            self.destroy()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass

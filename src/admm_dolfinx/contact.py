@@ -22,9 +22,20 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from admm_dolfinx._logging import warn
+from admm_dolfinx._mpi import collective_call, gather_concat
 from admm_dolfinx.obstacles import Obstacle
 
-__all__ = ["VERTEX_RULE", "ContactSet", "build_contact_set", "compute_gap", "contact_measure"]
+__all__ = [
+    "VERTEX_RULE",
+    "ContactSet",
+    "build_contact_set",
+    "compute_gap",
+    "contact_measure",
+    "dirichlet_fixed",
+    "mesh_bounds",
+    "read_only",
+]
 
 #: Vertex quadrature on facets: turns facet mass integrals into the lumped (diagonal)
 #: mass ∫ φ_j ds and evaluates nodal fields exactly at the nodes.
@@ -125,7 +136,19 @@ def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int)
     return int(counts[0])
 
 
-def _dirichlet_fixed(V: fem.FunctionSpace, bcs: Sequence[fem.DirichletBC]) -> npt.NDArray:
+def mesh_bounds(msh: mesh.Mesh) -> npt.NDArray[np.float64]:
+    """The (2, 3) array of the mesh's lower and upper corners over all ranks; collective.
+
+    A rank without cells (or nodes) takes part with neutral bounds.
+    """
+    x = msh.geometry.x
+    lo, hi = np.empty(3), np.empty(3)
+    msh.comm.Allreduce(np.ascontiguousarray(x.min(axis=0, initial=np.inf)), lo, op=MPI.MIN)
+    msh.comm.Allreduce(np.ascontiguousarray(x.max(axis=0, initial=-np.inf)), hi, op=MPI.MAX)
+    return np.vstack([lo, hi])
+
+
+def dirichlet_fixed(V: fem.FunctionSpace, bcs: Sequence[fem.DirichletBC]) -> npt.NDArray:
     """Return a (num_local_nodes, bs) boolean array: which dof components are fixed."""
     bs = V.dofmap.index_map_bs
     n_local = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
@@ -153,6 +176,7 @@ def build_contact_set(
     marker: int,
     bcs: Sequence[fem.DirichletBC],
     obstacle: Obstacle,
+    length_scale: float,
 ) -> ContactSet:
     """Find the contact nodes and compute their normals, mass and gap; collective.
 
@@ -163,6 +187,7 @@ def build_contact_set(
         bcs: Dirichlet conditions on V; a node whose normal displacement they fix is
             not a contact node.
         obstacle: The rigid obstacle.
+        length_scale: The body's size (see :func:`compute_gap`).
 
     Returns:
         The contact set.
@@ -184,7 +209,7 @@ def build_contact_set(
     normals_all = np.zeros_like(raw)
     normals_all[on_contact] = raw[on_contact] / length[on_contact, None]
 
-    fixed = _dirichlet_fixed(V, bcs)
+    fixed = dirichlet_fixed(V, bcs)
     free_all = np.where(fixed, 0.0, normals_all)
     active = on_contact & (np.linalg.norm(free_all, axis=1) > _FIXED_NORMAL_TOL)
 
@@ -217,7 +242,7 @@ def build_contact_set(
             "into contact. Remove the Dirichlet condition from the contact boundary or "
             "choose another contact marker."
         )
-    gap = compute_gap(obstacle, coordinates, normals, comm)
+    gap = compute_gap(obstacle, coordinates, normals, comm, length_scale)
 
     return ContactSet(
         Q=Q,
@@ -235,44 +260,97 @@ def build_contact_set(
     )
 
 
+def read_only(array: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """A read-only float64 copy of ``array``: what user code is handed."""
+    copy = np.array(array, dtype=np.float64, copy=True)
+    copy.flags.writeable = False
+    return copy
+
+
 def compute_gap(
     obstacle: Obstacle,
     coordinates: npt.NDArray[np.float64],
     normals: npt.NDArray[np.float64],
     comm: MPI.Comm,
+    length_scale: float,
 ) -> npt.NDArray[np.float64]:
     """The gap g_j from each contact node along its normal to the obstacle; collective.
+
+    ``obstacle.gap`` is user code: it gets read-only copies of the coordinates and
+    normals, and if it raises on one rank, every rank raises.
 
     Args:
         obstacle: The rigid obstacle.
         coordinates: Owned contact node coordinates, shape (m_loc, gdim).
         normals: Their unit outward normals, shape (m_loc, gdim).
         comm: The mesh's communicator.
+        length_scale: The body's size (the diagonal of its bounding box); a node that
+            starts deeper inside the obstacle than this is an input error.
 
     Returns:
         g, shape (m_loc,): finite, or +inf where a node can never touch the obstacle.
 
     Raises:
-        ValueError: On every rank, if ``obstacle.gap`` returns the wrong shape or a NaN
-            or −inf value at some node.
+        ValueError: On every rank, if ``obstacle.gap`` returns the wrong shape, a NaN
+            or −inf value, or a penetration deeper than the body's size at some node.
     """
-    gap = np.asarray(obstacle.gap(coordinates, normals), dtype=np.float64).reshape(-1)
-    shape_ok = comm.allreduce(gap.shape == (coordinates.shape[0],), op=MPI.LAND)
+    name = type(obstacle).__name__
+    x, n = read_only(coordinates), read_only(normals)
+    raw = collective_call(comm, lambda: obstacle.gap(x, n), f"{name}.gap")
+    try:
+        gap = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        gap = np.full(0, np.nan)
+    shape_ok = comm.allreduce(gap.shape in ((x.shape[0],), (x.shape[0], 1)), op=MPI.LAND)
     if not shape_ok:
         raise ValueError(
-            f"{type(obstacle).__name__}.gap returned an array of the wrong shape on some "
-            "process; it must return one value per contact node, shape (k,) for x and n "
-            "of shape (k, gdim)."
+            f"{name}.gap returned an array of the wrong shape or type on some process; it "
+            "must return one float per contact node, shape (k,) for x and n of shape "
+            "(k, gdim)."
         )
-    bad = ~(np.isfinite(gap) | (gap == np.inf))
-    bad_points = comm.gather(coordinates[bad][:5], root=0)
-    n_bad = comm.allreduce(int(np.count_nonzero(bad)), op=MPI.SUM)
-    if n_bad > 0:
-        examples = np.concatenate(bad_points)[:5] if comm.rank == 0 else None
-        examples = comm.bcast(examples, root=0)
-        raise ValueError(
-            f"The gap to {obstacle!r} is NaN or -inf at {n_bad} contact node(s), e.g. at "
-            f"{examples.tolist()}. The obstacle's gap() must return a finite value, or "
-            "+inf where the node can never touch the obstacle."
-        )
+    gap = gap.reshape(-1).copy()
+    _check_gap_values(gap, coordinates, comm, length_scale, f"{obstacle!r}")
     return gap
+
+
+def _check_gap_values(gap, coordinates, comm, length_scale, what) -> None:
+    """Refuse NaN, −inf and absurd penetrations; warn when no or every node touches."""
+    bad = ~(np.isfinite(gap) | (gap == np.inf))
+    deep = np.isfinite(gap) & (gap < -length_scale)
+    for mask, problem in (
+        (bad, "is NaN or -inf"),
+        (deep, f"is a penetration deeper than the body's size ({length_scale:.3g})"),
+    ):
+        examples = gather_concat(comm, coordinates[mask][:5])
+        n_bad = comm.allreduce(int(np.count_nonzero(mask)), op=MPI.SUM)
+        if n_bad > 0:
+            points = comm.bcast(None if examples is None else examples[0][:5].tolist(), root=0)
+            raise ValueError(
+                f"The gap to {what} {problem} at {n_bad} contact node(s), e.g. at {points}. "
+                "The gap must be finite (negative: the node starts inside the obstacle), "
+                "or +inf where the node can never touch the obstacle; check the "
+                "obstacle's position and its gap()."
+            )
+    counts = comm.allreduce(
+        np.array(
+            [
+                gap.size,
+                np.count_nonzero(gap == np.inf),
+                np.count_nonzero(gap < -1e-12 * length_scale),  # round-off of a gap 0
+            ]
+        ),
+        op=MPI.SUM,
+    )
+    total, never, inside = (int(v) for v in counts)
+    if total and never == total:
+        warn(
+            f"No contact node can ever touch {what}: every gap is +inf. Check the "
+            "obstacle's position, and that its normal points from the obstacle towards "
+            "the body."
+        )
+    elif total and inside == total:
+        warn(
+            f"Every contact node starts inside {what} (every gap is negative). If that "
+            "is not meant, check the obstacle's position and that its normal points "
+            "from the obstacle towards the body."
+        )

@@ -22,6 +22,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
+from admm_dolfinx._mpi import probe_vector
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.petsc import (
     check_solve,
@@ -41,17 +42,6 @@ __all__ = [
     "mean_diagonal",
     "projected_stiffness",
 ]
-
-
-def _probe_vector(coords: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """A pseudo-random start vector that depends only on node coordinates.
-
-    The Krylov sequence, and so the result, is then independent of the partition.
-    """
-    x = np.zeros((coords.shape[0], 3))
-    x[:, : coords.shape[1]] = coords
-    phase = np.sin(x @ np.array([12.9898, 78.233, 37.719]) + 0.5) * 43758.5453
-    return phase - np.floor(phase) - 0.5
 
 
 class NodalMap:
@@ -100,7 +90,7 @@ class ContactSpace:
         """A partition-independent pseudo-random m-vector (from node coordinates)."""
         vec = self.create_vec()
         with vec as arr:
-            arr[:] = _probe_vector(self.problem.contact.coordinates)
+            arr[:] = probe_vector(self.problem.contact.coordinates)
         return vec
 
     def shell(self, context: Any) -> PETSc.Mat:

@@ -16,7 +16,8 @@ from dolfinx import mesh
 from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
-from admm_dolfinx._rank0 import run_on_rank0
+from admm_dolfinx._mpi import run_on_rank0
+from admm_dolfinx.contact import mesh_bounds as global_bounds
 
 __all__ = [
     "MeshData",
@@ -56,15 +57,6 @@ def check_level(name: str, value: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
         raise ValueError(f"{name} must be an integer ≥ 0 (0: the coarsest mesh), got {value!r}.")
     return int(value)
-
-
-def global_bounds(msh: mesh.Mesh) -> np.ndarray:
-    """The (2, 3) array of the mesh's lower and upper corners over all ranks; collective."""
-    x = msh.geometry.x
-    lo, hi = np.empty(3), np.empty(3)
-    msh.comm.Allreduce(np.ascontiguousarray(x.min(axis=0)), lo, op=MPI.MIN)
-    msh.comm.Allreduce(np.ascontiguousarray(x.max(axis=0)), hi, op=MPI.MAX)
-    return np.vstack([lo, hi])
 
 
 def _import_gmsh():

@@ -16,7 +16,7 @@ import abc
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Ball", "Obstacle", "Plane"]
+__all__ = ["Ball", "Obstacle", "Plane", "obstacle_state"]
 
 
 class Obstacle(abc.ABC):
@@ -151,3 +151,20 @@ class Ball(Obstacle):
 
     def __repr__(self) -> str:
         return f"Ball(center={self.center.tolist()}, radius={self.radius})"
+
+
+def obstacle_state(obstacle: Obstacle) -> tuple:
+    """A snapshot of an obstacle's data, to detect a change made in place.
+
+    Arrays are compared by value, numbers, strings and containers by their repr, other
+    attributes by identity.
+    """
+    items: list[tuple] = []
+    for name, value in sorted(vars(obstacle).items()):
+        if isinstance(value, np.ndarray):
+            items.append((name, value.dtype.str, value.shape, value.tobytes()))
+        elif isinstance(value, int | float | complex | str | bool | tuple | list | dict):
+            items.append((name, repr(value)))
+        else:
+            items.append((name, id(value)))
+    return tuple(items)

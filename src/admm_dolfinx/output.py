@@ -1,8 +1,17 @@
-"""Writing results: whole or not at all.
+"""Writing results: only the files a command produces, each whole or not at all.
 
-Every writer here produces its files in a temporary sibling folder (or file) and
-moves them into place only after everything was written, so an interrupted run
-never leaves a half-written output behind.
+The rules (the package's guarantee, tested in ``tests/reliability``):
+
+* An output folder is created if need be and never removed or emptied: a command
+  writes its own files into it and touches nothing else (``--out .`` is safe).
+* Each file appears whole or not at all: it is written into a *staging* folder
+  beside its target, ``.admm-dolfinx-partial-<host>-<pid>-<random>``, and renamed
+  onto its final name only once the whole output was written (a file of the same
+  name, e.g. from an earlier run, is replaced).
+* A run killed while writing (``kill -9``) leaves its staging folder behind; the next
+  output written into the same folder removes every such folder whose process is no
+  longer alive on this host. Nothing else is ever deleted.
+* Files and folders get the permissions the umask allows, as any other program's.
 """
 
 from __future__ import annotations
@@ -11,6 +20,7 @@ import contextlib
 import json
 import os
 import shutil
+import socket
 import tempfile
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -19,16 +29,33 @@ from typing import IO, Any
 from dolfinx import fem, io
 from mpi4py import MPI
 
-from admm_dolfinx._rank0 import run_on_rank0
+from admm_dolfinx._mpi import raise_collectively, run_on_rank0
 
 __all__ = [
-    "atomic_directory",
+    "STAGING_MARK",
     "atomic_file",
     "atomic_path",
+    "check_output_folder",
+    "output_folder",
     "rank0_write",
+    "remove_stale_staging",
     "write_json",
     "write_xdmf",
 ]
+
+#: What the name of every staging folder starts with.
+STAGING_MARK = ".admm-dolfinx-partial-"
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _share(path: Path, directory: bool) -> None:
+    """Give ``path`` the permissions a plain ``mkdir``/``open`` would (mkdtemp: 0700)."""
+    os.chmod(path, (0o777 if directory else 0o666) & ~_umask())
 
 
 def rank0_write(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
@@ -62,47 +89,124 @@ def rank0_write(comm: MPI.Comm, target: Path, fn: Callable[[], Any]) -> Any:
     return run_on_rank0(comm, fn, failure)
 
 
-@contextlib.contextmanager
-def atomic_directory(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary folder that replaces ``path`` only if the block succeeds; collective.
+def _staging_name() -> str:
+    host = socket.gethostname().replace("-", "_") or "host"
+    return f"{STAGING_MARK}{host}-{os.getpid()}-"
 
-    Args:
-        comm: Communicator whose ranks all write into the folder.
-        path: Final folder.
 
-    Yields:
-        The temporary folder to write into.
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def remove_stale_staging(folder: str | os.PathLike) -> list[Path]:
+    """Remove the staging folders of killed runs in ``folder``; one process.
+
+    Only entries named ``.admm-dolfinx-partial-<this host>-<pid>-*`` whose process no
+    longer exists are removed; anything else is left alone.
+
+    Returns:
+        The removed paths.
+    """
+    root = Path(folder)
+    host = socket.gethostname().replace("-", "_") or "host"
+    removed = []
+    if not root.is_dir():
+        return removed
+    for entry in root.iterdir():
+        if not entry.name.startswith(f"{STAGING_MARK}{host}-"):
+            continue
+        pid_text = entry.name[len(STAGING_MARK) + len(host) + 1 :].split("-", 1)[0]
+        if not pid_text.isdigit() or _alive(int(pid_text)):
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
+        removed.append(entry)
+    return removed
+
+
+def check_output_folder(comm: MPI.Comm, path: str | os.PathLike) -> Path:
+    """Create ``path`` if need be and check that it is a writable folder; collective.
+
+    Called before the work, so that an unwritable ``--out`` fails in a second, not
+    after the solve.
+
+    Returns:
+        The resolved folder.
+
+    Raises:
+        OSError: On every rank, naming the path.
     """
     final = Path(path).resolve()
 
+    def check() -> None:
+        final.mkdir(parents=True, exist_ok=True)
+        if not os.access(final, os.W_OK | os.X_OK):
+            raise PermissionError(f"no write permission in {str(final)!r}")
+
+    rank0_write(comm, final, check)
+    return final
+
+
+@contextlib.contextmanager
+def output_folder(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
+    """Write files into ``path`` whole or not at all, touching nothing else; collective.
+
+    Yields a staging folder; the files the block writes there (``staging / name``)
+    are renamed into ``path`` once the block has succeeded on every rank. On a
+    failure (on any rank) nothing in ``path`` changes and the staging folder is
+    removed.
+
+    Args:
+        comm: Communicator whose ranks all write into the folder.
+        path: The output folder (created if need be; never removed).
+
+    Yields:
+        The staging folder to write into (a sibling of the final files).
+    """
+    final = check_output_folder(comm, path)
+
     def create() -> str:
-        final.parent.mkdir(parents=True, exist_ok=True)
-        return tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent)
+        remove_stale_staging(final)
+        tmp = Path(tempfile.mkdtemp(prefix=_staging_name(), dir=final))
+        _share(tmp, directory=True)
+        return str(tmp)
 
     tmp = Path(rank0_write(comm, final, create))
-    ok = False
+    error: Exception | None = None
     try:
         yield tmp
-        ok = True
-    finally:
-        ok = comm.allreduce(ok, op=MPI.LAND)
-        comm.Barrier()
-
-        def publish() -> None:
-            if final.exists():
-                shutil.rmtree(final)
-            tmp.rename(final)
-
-        if ok:
-            rank0_write(comm, final, publish)
-        elif comm.rank == 0:
+    except Exception as exc:
+        error = exc
+    except BaseException:  # KeyboardInterrupt: no collective call, just clean up
+        if comm.rank == 0:
             shutil.rmtree(tmp, ignore_errors=True)
-        comm.Barrier()
-    if not ok:  # reached by the ranks whose block succeeded while another's failed
-        raise RuntimeError(
-            f"The output {str(final)!r} was not written: another rank failed while "
-            "writing it (its error is reported there)."
-        )
+        raise
+    try:
+        raise_collectively(comm, error, f"Writing the output {str(final)!r}")
+    except Exception:
+        if comm.rank == 0:
+            shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    comm.Barrier()  # every rank has written and closed its part
+
+    def publish() -> None:
+        for entry in sorted(tmp.iterdir()):
+            os.replace(entry, final / entry.name)
+        tmp.rmdir()
+
+    try:
+        rank0_write(comm, final, publish)
+    finally:
+        if comm.rank == 0 and tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def write_json(comm: MPI.Comm, path: str | os.PathLike, data: Mapping[str, Any]) -> None:
@@ -128,7 +232,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """A temporary sibling of ``path`` that replaces it once the block has written it.
 
     On an error the temporary file is removed and ``path`` is left as it was. The
-    suffix is kept (writers that infer the format from it still work). One process.
+    suffix is kept (writers that infer the format from it still work); the name
+    carries the staging mark, so a killed run's leftover is removed by the next
+    write into the same folder. One process.
 
     Args:
         path: Final file (its folder is created if need be).
@@ -138,8 +244,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=target.suffix, dir=target.parent)
+    remove_stale_staging(target.parent)
+    fd, tmp = tempfile.mkstemp(prefix=_staging_name(), suffix=target.suffix, dir=target.parent)
     os.close(fd)
+    _share(Path(tmp), directory=False)
     try:
         yield Path(tmp)
         os.replace(tmp, target)

@@ -53,7 +53,7 @@ from dolfinx.common import Timer
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx._rank0 import run_on_rank0
+from admm_dolfinx._mpi import run_on_rank0
 from admm_dolfinx.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.contact_pencil import (
     ContactSpace,

@@ -45,23 +45,24 @@ _counter = itertools.count()
 
 
 class PetscOwner:
-    """Frees the PETSc objects named in ``_petsc_objects`` on :meth:`destroy` or GC."""
+    """Frees the PETSc objects named in ``_petsc_objects`` on :meth:`destroy`.
+
+    There is deliberately no ``__del__``: destroying a parallel PETSc object is
+    collective, and the garbage collector runs at different times on different ranks,
+    so a destructor that destroys would deadlock. An object that is never destroyed
+    explicitly is left to petsc4py, which defers parallel objects to
+    ``PETSc.garbage_cleanup``.
+    """
 
     _petsc_objects: tuple[str, ...] = ()
 
     def destroy(self) -> None:
-        """Free the PETSc objects this object owns."""
+        """Free the PETSc objects this object owns; collective."""
         for name in self._petsc_objects:
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.destroy()
                 setattr(self, name, None)
-
-    def __del__(self):
-        try:
-            self.destroy()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass
 
 
 def factor_options(options: Mapping[str, Any] | None, gdim: int | None = None) -> dict[str, Any]:

@@ -16,6 +16,7 @@ import numpy as np
 from dolfinx import fem, plot
 from mpi4py import MPI
 
+from admm_dolfinx._mpi import gather_concat, gather_objects
 from admm_dolfinx.material import LinearElastic
 from admm_dolfinx.output import atomic_path, rank0_write
 
@@ -65,8 +66,8 @@ def _gathered_grid(u: fem.Function, cell_values: fem.Function):
     n_cells = cell_types.size
     cell_dofs = cell_values.function_space.dofmap.list[:n_cells, 0]
     cvals = cell_values.x.array[cell_dofs]
-    parts = comm.gather((topology, cell_types, points, values_u, cvals), root=0)
-    if comm.rank != 0:
+    parts = gather_objects(comm, (topology, cell_types, points, values_u, cvals))
+    if parts is None:
         return None
     grids = []
     for topo, types, pts, uu, cv in parts:
@@ -150,12 +151,8 @@ def plot_deformed_von_mises(
 
 
 def _gather_contact(problem, values):
-    comm = problem.comm
-    coords = comm.gather(problem.contact.coordinates, root=0)
-    vals = comm.gather(np.asarray(values), root=0)
-    if comm.rank != 0:
-        return None, None
-    return np.concatenate(coords), np.concatenate(vals)
+    gathered = gather_concat(problem.comm, problem.contact.coordinates, np.asarray(values))
+    return (None, None) if gathered is None else gathered
 
 
 def plot_contact_pressure(

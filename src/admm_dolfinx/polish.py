@@ -48,6 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from admm_dolfinx._logging import get_logger
+from admm_dolfinx._mpi import RankLayout
 from admm_dolfinx.dense_pencil import compliance_matrix
 from admm_dolfinx.problem import ContactProblem
 
@@ -89,9 +90,8 @@ class ActiveSetPolish:
         self.comm = problem.comm
         self.problem = problem
         self._schur, self._k_cc, self._weights = schur, k_cc, weights
-        sizes = self.comm.allgather(problem.contact.gap.size)
-        self._bounds = np.concatenate([[0], np.cumsum(sizes)])
-        self._sqrt_mass = self._gather(np.sqrt(problem.contact.mass))
+        self._layout = RankLayout(self.comm, problem.contact.gap.size)
+        self._sqrt_mass = self._layout.gather(np.sqrt(problem.contact.mass))
         self.penalty = float("nan")
         self.setup_time = 0.0
         self._compliance: npt.NDArray[np.float64] | None = None
@@ -105,10 +105,6 @@ class ActiveSetPolish:
     def from_operator(cls, problem: ContactProblem, operator) -> ActiveSetPolish:
         """From a :class:`~admm_dolfinx.condensed.CondensedOperator` (its arrays outlive it)."""
         return cls(problem, operator.schur, operator.k_cc, operator.support.weights)
-
-    def _gather(self, local: npt.NDArray[np.float64]) -> npt.NDArray[np.float64] | None:
-        parts = self.comm.gather(np.ascontiguousarray(local), root=0)
-        return np.concatenate(parts, axis=-1) if self.comm.rank == 0 else None
 
     def set_penalty(self, r: float) -> None:
         """Use the penalty r of the step-1 solves: T and I − rT on rank 0; collective.
@@ -137,7 +133,7 @@ class ActiveSetPolish:
 
     def reset(self) -> None:
         """Start a solve: read the current gap; forget the guesses tried; collective."""
-        self._gap = self._gather(self.problem.contact.gap)
+        self._gap = self._layout.gather(self.problem.contact.gap)
         self._tried.clear()
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0
@@ -166,7 +162,7 @@ class ActiveSetPolish:
             condition; None otherwise.
         """
         t0 = time.perf_counter()
-        data = self._gather(np.stack([normal_u, force, guess.astype(float)]))
+        data = self._layout.gather(np.stack([normal_u, force, guess.astype(float)]))
         outcome, rounds, skip = None, 0, False
         if self.comm.rank == 0:
             skip = self.time > budget
@@ -182,11 +178,8 @@ class ActiveSetPolish:
         self.skipped += int(skip)
         local = None
         if found:
-            parts = None
-            if self.comm.rank == 0:
-                lo, hi = self._bounds[:-1], self._bounds[1:]
-                parts = [(outcome[0][a:b], outcome[1][a:b]) for a, b in zip(lo, hi, strict=True)]
-            local = self.comm.scatter(parts, root=0)
+            pair = self._layout.scatter(np.stack(outcome) if outcome is not None else None, 2)
+            local = (pair[0], pair[1])
         self.time += time.perf_counter() - t0
         return local
 

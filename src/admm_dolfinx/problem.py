@@ -30,15 +30,19 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from admm_dolfinx.checks import check_dirichlet_conditions, check_finite, check_stiffness
 from admm_dolfinx.contact import (
     ContactSet,
     build_contact_set,
     check_contact_facets,
     compute_gap,
     contact_measure,
+    dirichlet_fixed,
+    mesh_bounds,
 )
-from admm_dolfinx.obstacles import Obstacle
+from admm_dolfinx.obstacles import Obstacle, obstacle_state
 from admm_dolfinx.petsc import PetscOwner
+from admm_dolfinx.rigid_motions import RigidMotions, analyse_rigid_motions
 
 __all__ = ["ContactProblem"]
 
@@ -194,8 +198,7 @@ class ContactProblem(PetscOwner):
         for bc in bcs:
             if not isinstance(bc, fem.DirichletBC):
                 raise TypeError(f"`bcs` must hold dolfinx DirichletBC objects, got {type(bc)}.")
-            if _cpp(bc.function_space.mesh.topology) is not _cpp(msh.topology):
-                raise ValueError("A Dirichlet condition lives on a different mesh than the forms.")
+        check_dirichlet_conditions(V, bcs)
 
         check_contact_facets(msh, facet_tags, int(contact_marker))
 
@@ -206,14 +209,30 @@ class ContactProblem(PetscOwner):
         self.obstacle = obstacle
         self.facet_tags = facet_tags
         self.contact_marker = int(contact_marker)
+        #: (2, 3) lower and upper corners of the body (all ranks).
+        self.bounds = mesh_bounds(msh)
+        #: The body's size: the diagonal of its bounding box.
+        self.length_scale = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
         self.contact: ContactSet = build_contact_set(
-            V, facet_tags, self.contact_marker, bcs, obstacle
+            V, facet_tags, self.contact_marker, bcs, obstacle, self.length_scale
         )
+        self.A = self.K = self._load = self._lift_k = None
+        try:
+            self._assemble_operators(a, L, form_compiler_options, jit_options)
+        except BaseException:
+            self.destroy()  # collective: every rank raised alike
+            raise
+        self._obstacle_state = obstacle_state(obstacle)
+        #: Wall-clock seconds spent building the operators (``assembly``).
+        self.timings = {"assembly": time.perf_counter() - t_start}
 
+    def _assemble_operators(self, a, L, form_compiler_options, jit_options) -> None:
+        """A, K = NᵀMN and the load, each checked; collective."""
+        V, bcs, msh = self.V, self.bcs, self.mesh
         opts = {"form_compiler_options": form_compiler_options, "jit_options": jit_options}
         u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
         n_h = self.contact.normal
-        ds_c = contact_measure(msh, facet_tags, self.contact_marker)
+        ds_c = contact_measure(msh, self.facet_tags, self.contact_marker)
         self._a = fem.form(a, **opts)
         self._a_ufl, self._a_data = a, _form_data(a)
         self._k = fem.form(ufl.inner(ufl.dot(u, n_h), ufl.dot(v, n_h)) * ds_c, **opts)
@@ -222,14 +241,31 @@ class ContactProblem(PetscOwner):
 
         self.A = fem_petsc.assemble_matrix(self._a, bcs=bcs)
         self.A.assemble()
+        bs = V.dofmap.index_map_bs
+        n_owned = V.dofmap.index_map.size_local
+        fixed = dirichlet_fixed(V, bcs).reshape(-1)
+        dof_coordinates = np.repeat(V.tabulate_dof_coordinates()[:n_owned], bs, axis=0)
+        dof_coordinates[:, 0] += np.tile(np.arange(bs), n_owned) * 0.618
+        #: Mean diagonal of A over the free dofs; also the diagonal of its Dirichlet rows,
+        #: so that A is as well scaled as the elasticity itself (for E = 1e-16 as for 1e6).
+        self.stiffness_scale = check_stiffness(self.A, fixed, dof_coordinates)
+        diagonal = self.A.getDiagonal()
+        with diagonal as values:
+            values[fixed[: n_owned * bs]] = self.stiffness_scale
+        self.A.setDiagonal(diagonal, addv=PETSc.InsertMode.INSERT_VALUES)
+        diagonal.destroy()
+        self.A.assemble()
         self.K = fem_petsc.assemble_matrix(self._k, bcs=bcs, diag=0.0)
         self.K.assemble()
 
         self._load = fem_petsc.create_vector(V)
         self._lift_k = fem_petsc.create_vector(V)
         self._assemble_load()
-        #: Wall-clock seconds spent building the operators (``assembly``).
-        self.timings = {"assembly": time.perf_counter() - t_start}
+        c = self.contact
+        #: The rigid motions that A does not resist (each held by the contact).
+        self.rigid_motions: RigidMotions = analyse_rigid_motions(
+            self.A, V, c.nodes, c.normals, c.mass, self.stiffness_scale, self.bounds
+        )
 
     def _assemble_load(self) -> None:
         """Assemble f from L and the Dirichlet values, in place; collective.
@@ -244,10 +280,18 @@ class ContactProblem(PetscOwner):
         fem_petsc.assemble_vector(self._load, self._L)
         fem_petsc.apply_lifting(self._load, [self._a], bcs=[bcs])
         self._load.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        fem_petsc.set_bc(self._load, bcs)
+        # Dirichlet rows of A hold the stiffness scale s on the diagonal: s u_D = s g
+        fem_petsc.set_bc(self._load, bcs, alpha=self.stiffness_scale)
         fem_petsc.apply_lifting(self._lift_k, [self._k], bcs=[bcs])
         self._lift_k.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         fem_petsc.set_bc(self._lift_k, bcs, alpha=0.0)
+        check_finite(
+            self.comm,
+            self._load,
+            "The load vector assembled from `L` and the Dirichlet values",
+            "Give finite loads (the Constants and Functions of `L`) and finite prescribed "
+            "displacements.",
+        )
         free_load = self._load.copy()
         fem_petsc.set_bc(free_load, bcs, alpha=0.0)
         #: ‖f‖₂ over the free dofs (the scale of forces in the KKT residuals).
@@ -319,8 +363,23 @@ class ContactProblem(PetscOwner):
         """
         _check_obstacle(obstacle, self.gdim)
         c = self.contact
-        c.gap = compute_gap(obstacle, c.coordinates, c.normals, self.comm)
+        c.gap = compute_gap(obstacle, c.coordinates, c.normals, self.comm, self.length_scale)
         self.obstacle = obstacle
+        self._obstacle_state = obstacle_state(obstacle)
+
+    def check_obstacle_unchanged(self) -> None:
+        """Raise if the obstacle was changed in place since its gap was computed; collective.
+
+        Raises:
+            ValueError: On every rank, naming the fix (:meth:`update_obstacle`).
+        """
+        changed = obstacle_state(self.obstacle) != self._obstacle_state
+        if self.comm.allreduce(changed, op=MPI.LOR):
+            raise ValueError(
+                f"The obstacle {self.obstacle!r} was changed in place after its gap was "
+                "computed, so the problem's gap is out of date. Call "
+                "problem.update_obstacle(obstacle) after moving it (or pass a new one)."
+            )
 
     # ------------------------------------------------------------------ algebra
     @property

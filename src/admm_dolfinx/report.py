@@ -2,8 +2,9 @@
 
 ``solution.xdmf`` (displacement and contact pressure, for ParaView),
 ``deformed_von_mises.png``, ``normal_stress.png``, optionally
-``iterations_vs_r.png`` and ``summary.json``. The folder is replaced only once every
-file was written (see :func:`admm_dolfinx.output.atomic_directory`).
+``iterations_vs_r.png`` and ``summary.json``. They appear in the folder only once every
+one was written, and nothing else in the folder is touched (see
+:func:`admm_dolfinx.output.output_folder`).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Any
 
 from admm_dolfinx.admm import ADMMResult
 from admm_dolfinx.meshing import global_bounds
-from admm_dolfinx.output import atomic_directory, write_json, write_xdmf
+from admm_dolfinx.output import output_folder, write_json, write_xdmf
 from admm_dolfinx.problem import ContactProblem
 from admm_dolfinx.scenes import Scene
 from admm_dolfinx.sweep import PenaltySweep
@@ -54,7 +55,7 @@ def write_scene_outputs(
     """Write the XDMF file, the figures and the JSON summary of a solve; collective.
 
     Args:
-        folder: Output folder (replaced atomically).
+        folder: Output folder (created if need be; only these files are written).
         scene: The scene.
         problem: Its contact problem.
         result: The ADMM result.
@@ -76,7 +77,7 @@ def write_scene_outputs(
     summary = result_summary(scene, problem, result) | dict(extra or {})
     bounds = global_bounds(problem.mesh)  # collective: every rank calls it
     obstacle = obstacle_surface(scene.obstacle, bounds) if comm.rank == 0 else None
-    with atomic_directory(comm, folder) as tmp:
+    with output_folder(comm, folder) as tmp:
         write_xdmf(tmp / "solution.xdmf", [result.u, result.pressure])
         scale = plot_deformed_von_mises(
             result.u,

@@ -44,7 +44,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
-from admm_dolfinx._rank0 import run_on_rank0
+from admm_dolfinx._mpi import RankLayout, gather_csr, run_on_rank0
 from admm_dolfinx.contact import contact_measure
 from admm_dolfinx.petsc import PetscOwner
 from admm_dolfinx.problem import ContactProblem
@@ -70,7 +70,7 @@ class SurfaceMetric(PetscOwner):
 
     Attributes:
         normal_stiffness: Nᵀ L_Γ N in V's layout (Dirichlet rows and columns zero).
-        counts: Contact nodes per rank (the layout of gathered m-vectors: rank order).
+        layout: How the contact nodes lie over the ranks (gathered m-vectors: rank order).
     """
 
     _petsc_objects = ("surface_stiffness", "normal_map", "normal_stiffness")
@@ -115,25 +115,26 @@ class SurfaceMetric(PetscOwner):
         csr = sub.getValuesCSR()
         sub.destroy()
         index_set.destroy()
-        self.counts = np.array(comm.allgather(c.dofs.size))
-        pieces = comm.gather(csr, root=0)
-        masses = comm.gather(c.mass, root=0)
-        self._rank0: dict | None = None
-        if comm.rank == 0:
-            indptr = [np.zeros(1, dtype=PETSc.IntType)]
-            for ip, _, _ in pieces:
-                indptr.append(ip[1:] + indptr[-1][-1])
-            m = int(self.counts.sum())
+        #: How the contact nodes lie over the ranks (the order of gathered m-vectors).
+        self.layout = RankLayout(comm, c.dofs.size)
+        gathered = gather_csr(comm, csr)
+        masses = self.layout.gather(c.mass)
+
+        def build() -> dict:
+            indptr, indices, data = gathered
+            m = self.layout.total
             laplacian = PETSc.Mat().createAIJ(
                 (m, m),
-                csr=(
-                    np.concatenate(indptr).astype(PETSc.IntType),
-                    np.concatenate([p[1] for p in pieces]).astype(PETSc.IntType),
-                    np.concatenate([p[2] for p in pieces]),
-                ),
+                csr=(indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType), data),
                 comm=PETSc.COMM_SELF,
             )
-            self._rank0 = {"laplacian": laplacian, "mass": np.concatenate(masses)}
+            return {"laplacian": laplacian, "mass": masses}
+
+        def failure(name: str, text: str, _: bool) -> Exception:
+            return RuntimeError(f"Gathering L_Γ on rank 0 failed: {name}: {text}")
+
+        #: L_Γ and M on the contact nodes, on rank 0 (None elsewhere).
+        self._rank0: dict | None = run_on_rank0(comm, build, failure, broadcast=False)
         self._k_max_squared: float | None = None
         self._work: tuple[PETSc.Vec, PETSc.Vec] | None = None
         self._force: PETSc.Vec | None = None
@@ -272,23 +273,30 @@ class SurfaceProjection(PetscOwner):
         if not (math.isfinite(beta) and beta >= 0.0):
             raise ValueError(f"β must be finite and ≥ 0, got {beta!r}.")
         self.comm = metric.problem.comm
-        self.counts = metric.counts
+        self.layout = metric.layout
         self.beta = float(beta)
-        self._qp: _ActiveSetQP | None = None
-        if self.comm.rank == 0:
+
+        def build() -> _ActiveSetQP:
+            assert metric._rank0 is not None
             metric_matrix = metric._rank0["laplacian"].copy()
             metric_matrix.scale(beta)
             diagonal = metric_matrix.createVecLeft()
             diagonal.array[:] = metric._rank0["mass"]
             metric_matrix.setDiagonal(diagonal, addv=PETSc.InsertMode.ADD_VALUES)
             diagonal.destroy()
-            self._qp = _ActiveSetQP(metric_matrix, metric._rank0["mass"])
+            return _ActiveSetQP(metric_matrix, metric._rank0["mass"])
+
+        def failure(name: str, text: str, _: bool) -> Exception:
+            return RuntimeError(f"Setting up the surface-metric projection failed: {name}: {text}")
+
+        #: The QP on rank 0 (None elsewhere).
+        self._qp: _ActiveSetQP | None = run_on_rank0(self.comm, build, failure, broadcast=False)
 
     def reset(self, gap: npt.NDArray[np.float64]) -> None:
         """Start a solve: the current gap (local part), and an empty contact set; collective."""
-        g = self._gather(gap[None, :])
+        g = self.layout.gather(gap)
         if self._qp is not None:
-            self._qp.reset(g[0])
+            self._qp.reset(g)
 
     def __call__(
         self,
@@ -314,19 +322,18 @@ class SurfaceProjection(PetscOwner):
         Raises:
             RuntimeError: On every rank, if the active-set method does not terminate.
         """
-        data = self._gather(np.vstack([xi, lam, p, normal]))
-        out, error = None, None
-        if self._qp is not None:
-            try:
-                out = self._qp.step(*data, r)
-            except Exception as exc:
-                error = exc
-        report = self.comm.bcast(None if error is None else f"{type(error).__name__}: {error}")
-        if report is not None:
-            raise RuntimeError(
-                f"The surface-metric projection (step 2) failed: {report}"
-            ) from error
-        local = self._scatter(out, 3)
+        data = self.layout.gather(np.vstack([xi, lam, p, normal]))
+
+        def step() -> npt.NDArray[np.float64]:
+            assert self._qp is not None and data is not None
+            return self._qp.step(*data, r)
+
+        def failure(name: str, text: str, _: bool) -> Exception:
+            return RuntimeError(f"The surface-metric projection (step 2) failed: {name}: {text}")
+
+        # rank 0 solves; its failure is raised on every rank; the result is scattered
+        out = run_on_rank0(self.comm, step, failure, broadcast=False)
+        local = self.layout.scatter(out, 3)
         return local[0], local[1], local[2]
 
     def statistics(self) -> dict[str, int]:
@@ -335,38 +342,6 @@ class SurfaceProjection(PetscOwner):
         if self._qp is not None:
             counts = {"rounds": self._qp.rounds, "factorisations": self._qp.factorisations}
         return self.comm.bcast(counts, root=0)
-
-    def _gather(self, rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64] | None:
-        """Stack (k, m_loc) arrays of all ranks into (k, m) on rank 0, in rank order."""
-        k = rows.shape[0]
-        send = np.ascontiguousarray(rows, dtype=np.float64)
-        if self.comm.size == 1:
-            return send.copy()
-        sizes = self.counts * k
-        recv = np.empty(int(sizes.sum())) if self.comm.rank == 0 else None
-        self.comm.Gatherv(send.ravel(), [recv, sizes] if recv is not None else None, root=0)
-        if recv is None:
-            return None
-        blocks, start = [], 0
-        for size in sizes:
-            blocks.append(recv[start : start + size].reshape(k, -1))
-            start += size
-        return np.hstack(blocks)
-
-    def _scatter(self, rows: npt.NDArray[np.float64] | None, k: int) -> npt.NDArray[np.float64]:
-        """Split (k, m) on rank 0 into each rank's (k, m_loc)."""
-        m_loc = int(self.counts[self.comm.rank])
-        if self.comm.size == 1:
-            return rows
-        send = None
-        if self.comm.rank == 0:
-            offsets = np.concatenate([[0], np.cumsum(self.counts)])
-            send = np.concatenate(
-                [rows[:, offsets[i] : offsets[i + 1]].ravel() for i in range(self.comm.size)]
-            )
-        recv = np.empty(k * m_loc)
-        self.comm.Scatterv([send, self.counts * k] if send is not None else None, recv, root=0)
-        return recv.reshape(k, m_loc)
 
     def destroy(self) -> None:
         """Free the rank-0 matrices and factorisations."""

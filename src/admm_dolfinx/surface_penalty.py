@@ -40,7 +40,8 @@ from petsc4py import PETSc
 from slepc4py import SLEPc
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx.contact_pencil import _probe_vector, contact_layer, mean_diagonal
+from admm_dolfinx._mpi import probe_vector
+from admm_dolfinx.contact_pencil import contact_layer, mean_diagonal
 from admm_dolfinx.penalty import PenaltyEstimate
 from admm_dolfinx.petsc import apply_options, factor_options, solve_top_eigenpair
 from admm_dolfinx.problem import ContactProblem
@@ -187,7 +188,7 @@ def _largest_on_layer(problem, matrix, prefix, petsc_options):
         position = np.searchsorted(nodes, c.nodes)
         with start as arr:
             arr.reshape(-1, bs)[position, : problem.gdim] = (
-                c.free_normals * _probe_vector(c.coordinates)[:, None]
+                c.free_normals * probe_vector(c.coordinates)[:, None]
             )
         value, vec, its = _layer_eigenvalue(penalty, stiffness, start, prefix, petsc_options)
         vec.destroy()

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from admm_dolfinx._mpi import RankLayout
+
 __all__ = ["HertzErrors", "hertz_errors", "observed_rate"]
 
 
@@ -46,9 +48,9 @@ def hertz_errors(scene, problem, multiplier) -> HertzErrors:
     Returns:
         The errors.
     """
-    comm = problem.comm
-    x = np.concatenate(comm.allgather(problem.contact.coordinates[:, 0]))
-    lam = np.concatenate(comm.allgather(np.asarray(multiplier)))
+    layout = RankLayout(problem.comm, problem.contact.dofs.size)
+    x = layout.allgather(problem.contact.coordinates[:, 0])
+    lam = layout.allgather(multiplier)
     a, p0 = scene.info["a"], scene.info["p0"]
     order = np.argsort(x)
     xs, ls = x[order], lam[order]

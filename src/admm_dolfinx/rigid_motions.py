@@ -1,0 +1,164 @@
+"""Rigid motions that cost no energy, and whether the contact can hold them.
+
+A body whose Dirichlet conditions do not hold every rigid motion *floats*: A is
+singular, and only the contact can keep it in place (the paper's Hertz cylinder, free
+to move vertically). That is well posed along a motion that moves Γ_C towards or away
+from the obstacle, N d ≠ 0: the contact pressure balances the load there. A motion
+with N d = 0 (a flat body sliding along a flat obstacle, a disc spinning on its
+centre) is held by nothing: the QP then has no unique minimiser, and the answer would
+drift with the penalty. :func:`analyse_rigid_motions` finds the first kind (their
+number is what the penalty estimate needs) and refuses the second.
+
+Method: with the rigid motions R of the mesh (gdim translations and the rotations
+about the body's centre, scaled by its size), the floating ones are the
+eigenvectors of Rᵀ A R z = μ RᵀR z with μ at round-off of the stiffness scale
+(a motion that moves a Dirichlet dof costs at least that scale over the number of
+nodes); of those, the ones the contact normals do not see have ‖N d‖ at round-off
+of ‖d‖ on Γ_C. A few products with A; collective.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+__all__ = ["RigidMotions", "analyse_rigid_motions"]
+
+#: μ below this times the stiffness scale: the motion costs no energy (floats).
+FLOATING_TOL = 1e-10
+#: ‖N d‖²_M below this times ‖d‖²_M on Γ_C: the contact normals do not see the motion.
+UNSEEN_TOL = 1e-10
+
+
+@dataclass(frozen=True)
+class RigidMotions:
+    """The rigid motions A does not resist.
+
+    Attributes:
+        floating: How many independent rigid motions cost no energy (0: A is
+            positive definite). Γ_C's normals see each of them.
+    """
+
+    floating: int
+
+
+def _basis(V: fem.FunctionSpace, center: npt.NDArray, length: float) -> list[PETSc.Vec]:
+    """Translations e_i and rotations about ``center`` scaled by 1/length (owned dofs)."""
+    gdim = V.mesh.geometry.dim
+    bs = V.dofmap.index_map_bs
+    n = V.dofmap.index_map.size_local
+    x = (V.tabulate_dof_coordinates()[:n, :gdim] - center[:gdim]) / length
+    rotations = [(0, 1)] if gdim == 2 else [(1, 2), (2, 0), (0, 1)]  # about z; x, y, z
+    vectors = []
+    for k in range(gdim + len(rotations)):
+        vec = fem_petsc.create_vector(V)
+        values = np.zeros((n, bs))
+        if k < gdim:
+            values[:, k] = 1.0
+        else:
+            i, j = rotations[k - gdim]
+            values[:, i] = -x[:, j]
+            values[:, j] = x[:, i]
+        vec.array[: n * bs] = values.reshape(-1)
+        vectors.append(vec)
+    return vectors
+
+
+def _gram(left: list[PETSc.Vec], right: list[PETSc.Vec]) -> np.ndarray:
+    return np.array([[a.dot(b) for b in right] for a in left])
+
+
+def _describe(z: npt.NDArray, gdim: int) -> str:
+    z = z / np.max(np.abs(z))
+    parts = []
+    t = z[:gdim]
+    if np.linalg.norm(t) > 1e-3:
+        parts.append("translation along (" + ", ".join(f"{c:.2g}" for c in t) + ")")
+    w = z[gdim:]
+    if np.linalg.norm(w) > 1e-3:
+        if gdim == 2:
+            parts.append("rotation in the plane")
+        else:
+            parts.append("rotation about the axis (" + ", ".join(f"{c:.2g}" for c in w) + ")")
+    return " with ".join(parts) or "rigid motion"
+
+
+def analyse_rigid_motions(
+    A: PETSc.Mat,
+    V: fem.FunctionSpace,
+    nodes: npt.NDArray[np.int32],
+    normals: npt.NDArray[np.float64],
+    mass: npt.NDArray[np.float64],
+    stiffness_scale: float,
+    bounds: npt.NDArray[np.float64],
+) -> RigidMotions:
+    """The floating rigid motions; raise if the contact does not hold one; collective.
+
+    Args:
+        A: Stiffness (Dirichlet rows and columns eliminated, their diagonal at the
+            stiffness scale).
+        V: Displacement space.
+        nodes: Owned contact nodes (block indices of V).
+        normals: Their contact normals (the rows of N).
+        mass: Their lumped masses M_jj.
+        stiffness_scale: Mean diagonal of A on the free dofs.
+        bounds: (2, 3) lower and upper corners of the body.
+
+    Returns:
+        The number of floating motions.
+
+    Raises:
+        ValueError: On every rank, if a floating rigid motion has no normal component
+            on Γ_C (nothing holds it), naming the motion and the fix.
+    """
+    comm = V.mesh.comm
+    gdim = V.mesh.geometry.dim
+    bs = V.dofmap.index_map_bs
+    center = 0.5 * (bounds[0] + bounds[1])
+    length = float(np.linalg.norm(bounds[1] - bounds[0])) or 1.0
+    basis = _basis(V, center, length)
+    products = [A.createVecLeft() for _ in basis]
+    try:
+        for vec, out in zip(basis, products, strict=True):
+            A.mult(vec, out)
+        G = _gram(basis, products)
+        B = _gram(basis, basis)
+        # the motions at the contact nodes, for N d and |d|
+        local = np.array([vec.array_r.reshape(-1, bs)[nodes, :gdim] for vec in basis])
+    finally:
+        for vec in (*basis, *products):
+            vec.destroy()
+    G = 0.5 * (G + G.T)
+    L = np.linalg.cholesky(0.5 * (B + B.T))
+    Li = np.linalg.inv(L)
+    mu, W = np.linalg.eigh(Li @ G @ Li.T)
+    floating = W[:, mu <= FLOATING_TOL * stiffness_scale]
+    if floating.shape[1] == 0:
+        return RigidMotions(floating=0)
+    Z = Li.T @ floating  # coefficients of the floating motions in the basis
+    motions = np.einsum("kjd,kf->fjd", local, Z) if local.size else np.zeros((Z.shape[1], 0, gdim))
+    normal_part = np.einsum("fjd,jd->fj", motions, normals) if motions.size else motions[..., 0]
+    C = comm.allreduce(np.einsum("fj,gj,j->fg", normal_part, normal_part, mass), op=MPI.SUM)
+    D = comm.allreduce(np.einsum("fjd,gjd,j->fg", motions, motions, mass), op=MPI.SUM)
+    D = 0.5 * (D + D.T) + 1e-12 * max(np.trace(D), np.finfo(float).tiny) * np.eye(D.shape[0])
+    LD = np.linalg.cholesky(D)
+    LDi = np.linalg.inv(LD)
+    seen, U = np.linalg.eigh(LDi @ (0.5 * (C + C.T)) @ LDi.T)
+    unseen = seen <= UNSEEN_TOL
+    if np.any(unseen):
+        z = Z @ (LDi.T @ U[:, np.flatnonzero(unseen)[0]])
+        raise ValueError(
+            f"The body can move rigidly ({_describe(z, gdim)}) without straining and "
+            "without moving towards the obstacle: neither the Dirichlet conditions nor "
+            "the contact hold that motion, so the contact problem has no unique solution. "
+            "Add a Dirichlet condition that holds it, e.g. fix the tangential "
+            "displacement on a symmetry line or plane (fem.dirichletbc(0.0, dofs, "
+            "V.sub(i))) or at a point."
+        )
+    return RigidMotions(floating=int(floating.shape[1]))
