@@ -84,7 +84,7 @@ from admm_dolfinx.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.kkt import KKTResiduals, _ratio, compute_kkt_residuals, gap_residuals
 from admm_dolfinx.operators import PenalisedOperator
 from admm_dolfinx.penalty import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_penalty
-from admm_dolfinx.petsc import unique_prefix
+from admm_dolfinx.petsc import is_factorisation, unique_prefix
 from admm_dolfinx.polish import ActiveSetPolish
 from admm_dolfinx.problem import ContactProblem
 from admm_dolfinx.surface_metric import SurfaceMetric, SurfaceProjection
@@ -441,45 +441,51 @@ class ADMMSolver:
             )
         if condensed is None:
             condensed = serial and schur_possible and (auto or polish is True)
-        operator_class = CondensedOperator if condensed else PenalisedOperator
-        self.operator = operator_class(problem, self.prefix, petsc_options)
-        # where the step-1 operator is not condensed, a private condensed factorisation
-        # serves r* (2D) and polishing, and is freed once S_C has been read
-        schur_source = self.operator if condensed else None
-        private = None
-        if schur_source is None and schur_possible and polish is not False and (auto or polish):
-            private = CondensedOperator(problem, self.prefix + "schur_", petsc_options)
-            schur_source = private
         #: Active-set polishing (None when off).
         self.polisher: ActiveSetPolish | None = None
-        if schur_source is not None and polish is not False:
-            self.polisher = ActiveSetPolish.from_operator(problem, schur_source)
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
         #: β and r of the surface metric (None with the paper's metric r M).
         self.surface_penalty: SurfacePenalty | None = None
         self._metric: SurfaceMetric | None = None
         self._projection: SurfaceProjection | None = None
-        surface = penalty_metric == "surface" or (
-            penalty_metric == "auto"
-            and problem.gdim == 3
-            and auto
-            and mode == "accelerated"
-            and self.polisher is None
-        )
-        self._time_schur = private.timings["factorization"] if private else 0.0
+        self.operator: PenalisedOperator | CondensedOperator | None = None
+        # The inner factorisations of r* (layers, the body at r_a) take the step-1
+        # options only if those describe a factorisation too (MUMPS's memory options);
+        # an iterative step-1 solver's options are not theirs.
+        factor_opts = dict(petsc_options or {}) if is_factorisation(petsc_options) else None
+        private = None
         try:
+            operator_class = CondensedOperator if condensed else PenalisedOperator
+            self.operator = operator_class(problem, self.prefix, petsc_options)
+            # where the step-1 operator is not condensed, a private condensed
+            # factorisation serves r* (2D) and polishing, and is freed once S_C is read
+            schur_source = self.operator if condensed else None
+            if schur_source is None and schur_possible and polish is not False and (auto or polish):
+                private = CondensedOperator(problem, self.prefix + "schur_", petsc_options)
+                schur_source = private
+            if schur_source is not None and polish is not False:
+                self.polisher = ActiveSetPolish.from_operator(problem, schur_source)
+            surface = penalty_metric == "surface" or (
+                penalty_metric == "auto"
+                and problem.gdim == 3
+                and auto
+                and mode == "accelerated"
+                and self.polisher is None
+            )
+            self._time_schur = private.timings["factorization"] if private else 0.0
             if auto:
                 # r* gets this solver's own operator: a condensed one gives r* densely
                 # and serves the ADMM at r* with no new sparse factorisation. Otherwise,
                 # at the default tolerance r* factorises nothing of the whole body; where
                 # it does (tight tolerance, floating body: at an auxiliary r_a), the
                 # factorisation at r* below reuses its symbolic analysis.
+                shared = schur_source or (self.operator if factor_opts is not None else None)
                 self.penalty_estimate = estimate_penalty(
                     problem,
                     tol=penalty_tol,
-                    operator=schur_source or self.operator,
-                    petsc_options=petsc_options,
+                    operator=shared,
+                    petsc_options=factor_opts,
                     petsc_options_prefix=self.prefix + "penalty_",
                 )
                 penalty = self.penalty_estimate.r
@@ -490,16 +496,19 @@ class ADMMSolver:
                     self._metric,
                     self.penalty_estimate,
                     prefix=self.prefix + "surface_",
-                    petsc_options=petsc_options,
+                    petsc_options=factor_opts,
                 )
                 beta = self.surface_penalty.beta
                 self.operator.use_penalty_matrix(self._metric.penalty_matrix(beta), "Nᵀ(M + βL_Γ)N")
                 self._projection = self._metric.projection(beta)
                 penalty = self.surface_penalty.r
+            self.set_penalty(penalty)
+        except BaseException:
+            self.destroy()  # collective: a failure here is raised on every rank
+            raise
         finally:
             if private is not None:
                 private.destroy()
-        self.set_penalty(penalty)
 
     # ------------------------------------------------------------------ set-up
     @property
@@ -937,8 +946,9 @@ class ADMMSolver:
 
     # ------------------------------------------------------------------ lifetime
     def destroy(self) -> None:
-        """Free the KSP, the step-1 operator and the surface metric's objects."""
-        self.operator.destroy()
+        """Free the KSP, the step-1 operator and the surface metric's objects; collective."""
+        if getattr(self, "operator", None) is not None:
+            self.operator.destroy()
         for name in ("_projection", "_metric"):
             obj = getattr(self, name, None)
             if obj is not None:

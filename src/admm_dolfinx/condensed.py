@@ -42,9 +42,16 @@ from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx._mpi import RankLayout, gather_concat
+from admm_dolfinx._mpi import RankLayout, gather_concat, run_on_rank0
 from admm_dolfinx.operators import FactorisedOperator
-from admm_dolfinx.petsc import check_solve, factor_options, prefixed_options
+from admm_dolfinx.petsc import (
+    check_solve,
+    describe_factor_failure,
+    describe_petsc_error,
+    factor_options,
+    is_factorisation,
+    prefixed_options,
+)
 from admm_dolfinx.petsc_schur import SchurBlock, factorize_schur, full_symmetric, set_schur_indices
 from admm_dolfinx.problem import ContactProblem
 
@@ -57,15 +64,6 @@ __all__ = [
 
 
 # ---------------------------------------------------------------------------------
-def _mumps_factor(options: Mapping[str, Any]) -> bool:
-    merged = factor_options(options)
-    return (
-        merged.get("ksp_type") == "preonly"
-        and merged.get("pc_type") in ("cholesky", "lu")
-        and merged.get("pc_factor_mat_solver_type") == "mumps"
-    )
-
-
 #: Above this many contact nodes the automatic choices leave the condensed
 #: factorisation aside: S_C (up to 2m × 2m in 2D) would take over 250 MB and its dense
 #: front would dominate the factorisation. Example 1 at h = 1/256 has m = 512.
@@ -85,7 +83,7 @@ def condensed_factor_applies(
         any_dimension: Accept any dimension and size (an explicit request: in 3D S_C is
             dense on a surface, which is costly).
     """
-    if not _mumps_factor(options or {}):
+    if not is_factorisation(options or {}):
         return False
     if any_dimension:
         return True
@@ -160,7 +158,7 @@ class CondensedOperator(FactorisedOperator):
         petsc_options: Mapping[str, Any] | None = None,
     ):
         options = factor_options(petsc_options, problem.gdim)
-        if not _mumps_factor(options):
+        if not is_factorisation(options):
             raise ValueError(
                 "The condensed factorisation needs a MUMPS factorisation (ksp_type "
                 "preonly, pc_type cholesky or lu, pc_factor_mat_solver_type mumps); "
@@ -185,40 +183,63 @@ class CondensedOperator(FactorisedOperator):
         self.matrix.scale(1.0 / self._scale)
         self.matrix.setOption(PETSc.Mat.Option.SPD, True)
         self.ksp = PETSc.KSP().create(comm)
+        self.factor: PETSc.Mat | None = None
+        self.schur = None
+        self.k_cc = None
         try:
             with Timer("admm_dolfinx: factorisation (A condensed onto Γ_C)"):
                 self.ksp.setOperators(self.matrix)
                 self.ksp.setOptionsPrefix(prefix)
+                database = PETSc.Options()
                 with prefixed_options(prefix, options):
-                    self.ksp.setFromOptions()
-                    pc = self.ksp.getPC()
-                    pc.setFactorSetUpSolverType()
-                    self.factor = pc.getFactorMatrix()
-                    set_schur_indices(self.factor, index_set)
-                    self.ksp.setUp()
+                    try:
+                        self.ksp.setFromOptions()
+                        pc = self.ksp.getPC()
+                        pc.setFactorSetUpSolverType()
+                        self.factor = pc.getFactorMatrix()
+                        set_schur_indices(self.factor, index_set)
+                        self.ksp.setUp()
+                    except PETSc.Error as error:
+                        raise RuntimeError(
+                            f"PETSc could not factorise A condensed onto Γ_C (prefix "
+                            f"{prefix!r}, options {options}): {describe_petsc_error(error)}."
+                        ) from error
+                    unused = [k for k in options if not database.used(f"{prefix}{k}")]
+                if unused:
+                    raise ValueError(
+                        f"PETSc did not use the option(s) {unused} of the step-1 solver "
+                        f"(prefix {prefix!r}): misspelt, or meant for another solver."
+                    )
                 self._check_factorisation()
             # K_CC: the ADMM's K restricted to C (a sequential matrix on every rank)
             k_sub = problem.K.createSubMatrices(index_set, index_set)[0]
-            self.schur = None
-            self.k_cc = None
-            if comm.rank == 0:
-                with SchurBlock(self.factor) as block:
-                    self.schur = self._scale * full_symmetric(block.T, serial=comm.size == 1)
-                self.k_cc = k_sub.convert("dense").getDenseArray().copy()
-            k_sub.destroy()
+            try:
+
+                def read() -> tuple[np.ndarray, np.ndarray]:
+                    with SchurBlock(self.factor) as block:
+                        schur = self._scale * full_symmetric(block.T, serial=comm.size == 1)
+                    return schur, k_sub.convert("dense").getDenseArray().copy()
+
+                def failure(name: str, text: str, _: bool) -> Exception:
+                    return RuntimeError(f"Reading the Schur complement S_C failed: {name}: {text}")
+
+                dense = run_on_rank0(comm, read, failure, broadcast=False)
+                if dense is not None:
+                    self.schur, self.k_cc = dense
+            finally:
+                k_sub.destroy()
             self._check_support()
+        except BaseException:
+            self.destroy()
+            raise
         finally:
             index_set.destroy()
         self.timings["factorization"] = time.perf_counter() - t0
 
     def _check_factorisation(self) -> None:
-        reason = self.ksp.getPC().getFailedReason()
-        if reason != 0:
-            raise RuntimeError(
-                f"The factorisation of A condensed onto Γ_C failed (PETSc reason {reason}). "
-                "A_II, the stiffness with the contact normal dofs removed, must be "
-                "non-singular: the Dirichlet conditions and Γ_C together must hold the body."
-            )
+        failure = describe_factor_failure(self.ksp)
+        if failure is not None:
+            raise RuntimeError(f"The factorisation of A condensed onto Γ_C failed: {failure}.")
 
     def _check_support(self) -> None:
         """K must vanish outside C × C, or the condensed solve would be wrong."""

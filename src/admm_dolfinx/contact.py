@@ -296,7 +296,20 @@ def compute_gap(
     """
     name = type(obstacle).__name__
     x, n = read_only(coordinates), read_only(normals)
-    raw = collective_call(comm, lambda: obstacle.gap(x, n), f"{name}.gap")
+
+    def user_gap():
+        try:
+            return obstacle.gap(x, n)
+        except ValueError as error:
+            if "read-only" in str(error):
+                raise ValueError(
+                    f"{name}.gap tried to write into its inputs x or n, which are "
+                    "read-only (they are the problem's node coordinates and normals): "
+                    "compute the gap into a new array (e.g. n = n.copy() first)."
+                ) from error
+            raise
+
+    raw = collective_call(comm, user_gap, f"{name}.gap")
     try:
         gap = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):

@@ -20,8 +20,11 @@ __all__ = [
     "PetscOwner",
     "apply_options",
     "create_factor_solver",
+    "describe_factor_failure",
+    "describe_petsc_error",
     "factor_options",
     "factorization_count",
+    "is_factorisation",
     "prefixed_options",
     "solve_top_eigenpair",
     "unique_prefix",
@@ -66,7 +69,13 @@ class PetscOwner:
 
 
 def factor_options(options: Mapping[str, Any] | None, gdim: int | None = None) -> dict[str, Any]:
-    """The options of a factorisation: the defaults, the 2D ordering, then ``options``.
+    """The options of a step-1 solver: the defaults, the 2D ordering, then ``options``.
+
+    The defaults (:data:`DEFAULT_FACTOR_OPTIONS`) are one choice, a factorisation, and
+    apply only as a whole: options that choose another Krylov method (``ksp_type``
+    other than ``preonly``) or another preconditioner (``pc_type`` other than
+    ``cholesky``/``lu``) replace them entirely, so that e.g. ``{"ksp_type": "gmres",
+    "pc_type": "ilu"}`` does not inherit MUMPS as the ILU's solver package.
 
     Args:
         options: The caller's options; they override everything.
@@ -75,10 +84,25 @@ def factor_options(options: Mapping[str, Any] | None, gdim: int | None = None) -
     Returns:
         The merged options.
     """
-    merged = {**DEFAULT_FACTOR_OPTIONS, **dict(options or {})}
+    given = dict(options or {})
+    iterative = given.get("ksp_type", "preonly") != "preonly"
+    other_pc = given.get("pc_type", "cholesky") not in ("cholesky", "lu")
+    if iterative or other_pc:
+        return given
+    merged = {**DEFAULT_FACTOR_OPTIONS, **given}
     if gdim == 2 and merged.get("pc_factor_mat_solver_type") == "mumps":
         merged = {**ORDERING_2D, **merged}
     return merged
+
+
+def is_factorisation(options: Mapping[str, Any] | None) -> bool:
+    """Whether ``options`` (merged with the defaults) describe a direct solve with MUMPS."""
+    merged = factor_options(options)
+    return (
+        merged.get("ksp_type") == "preonly"
+        and merged.get("pc_type") in ("cholesky", "lu")
+        and merged.get("pc_factor_mat_solver_type") == "mumps"
+    )
 
 
 def unique_prefix(stem: str) -> str:
@@ -114,14 +138,22 @@ def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator
 
 
 def apply_options(
-    obj: Any, prefix: str, options: Mapping[str, Any] | None, *, setup: bool = False
+    obj: Any,
+    prefix: str,
+    options: Mapping[str, Any] | None,
+    *,
+    setup: bool = False,
+    what: str = "",
 ) -> None:
     """Set ``obj``'s prefix, push ``options`` under it, call ``setFromOptions``, clean up.
 
     Some options are read only when the object is set up (MUMPS's ``mat_mumps_*``, a
     multigrid's level smoothers); pass ``setup=True`` to call ``setUp`` while they are
     still in the database, or they would be silently ignored (objects that set up
-    inside their solve use :func:`prefixed_options` around it instead).
+    inside their solve use :func:`prefixed_options` around it instead). With
+    ``setup=True``, an option that PETSc did not read by then (misspelt, or meant for
+    another object) is an error, and so is a PETSc failure, with a message naming the
+    options and the prefix.
 
     Args:
         obj: A PETSc object with ``setOptionsPrefix`` and ``setFromOptions``.
@@ -129,16 +161,106 @@ def apply_options(
         options: Option names without prefix (``{"pc_type": "lu"}``) and values;
             ``None`` values set a flag.
         setup: Call ``obj.setUp()`` before the options are removed.
+        what: What ``obj`` is, for error messages ("the step-1 solver").
+
+    Raises:
+        ValueError: With ``setup=True``, if an option was not used.
+        RuntimeError: If PETSc fails to apply the options or to set up ``obj``.
     """
     obj.setOptionsPrefix(prefix)
+    options = dict(options or {})
+    database = PETSc.Options()
     with prefixed_options(prefix, options):
-        obj.setFromOptions()
-        if setup:
-            obj.setUp()
+        try:
+            obj.setFromOptions()
+            if setup:
+                obj.setUp()
+        except PETSc.Error as error:
+            raise RuntimeError(
+                f"PETSc could not set up {what or type(obj).__name__} (options prefix "
+                f"{prefix!r}) with the options {options}: {describe_petsc_error(error)}."
+            ) from error
+        unused = [key for key in options if setup and not database.used(f"{prefix}{key}")]
+    if unused:
+        raise ValueError(
+            f"PETSc did not use the option(s) {unused} given for "
+            f"{what or type(obj).__name__} (prefix {prefix!r}): misspelt, or meant for "
+            "another solver. Options that are only read while solving (monitors, views) "
+            f"go into PETSc's options database as -{prefix}<name> instead."
+        )
+
+
+#: What PETSc's error codes mean for a user of this package (petscerror.h).
+_PETSC_ERRORS = {
+    55: "out of memory",
+    56: "an operation this matrix type or solver package does not support",
+    62: "a wrong argument value",
+    71: "a zero pivot in the LU factorisation (a singular operator)",
+    76: "an error in an external library (MUMPS, SuperLU_dist, ...)",
+    81: "a zero pivot in the Cholesky factorisation (not positive definite)",
+    86: "an unknown type name",
+    91: "a solver that did not converge",
+    92: "no solver package for this factorisation (e.g. MUMPS has no ILU; PETSc's own "
+    "ILU and ICC are sequential: in parallel use pc_type bjacobi with sub_pc_type ilu)",
+}
+
+
+def describe_petsc_error(error: PETSc.Error) -> str:
+    """PETSc's error code with what it means."""
+    code = getattr(error, "ierr", None)
+    meaning = _PETSC_ERRORS.get(code, "see the PETSc traceback above") if code else ""
+    return f"PETSc error {code}: {meaning}"
+
+
+#: MUMPS's INFOG(1) values that mean "not enough memory" (MUMPS user's guide, §8).
+_MUMPS_MEMORY = (-8, -9, -11, -13, -14, -15, -17, -19, -20)
+
+
+def describe_factor_failure(ksp: PETSc.KSP) -> str | None:
+    """Why the factorisation of ``ksp``'s preconditioner failed, if it did; else None."""
+    pc = ksp.getPC()
+    reason = int(pc.getFailedReason())
+    infog = None
+    if pc.getType() in ("cholesky", "lu"):
+        try:
+            factor = pc.getFactorMatrix()
+            if factor.getType() == "mumps":
+                infog = (factor.getMumpsInfog(1), factor.getMumpsInfog(2))
+        except PETSc.Error:  # not set up
+            infog = None
+    if infog is not None and infog[0] < 0:
+        code = infog[0]
+        if code in _MUMPS_MEMORY:
+            return (
+                f"MUMPS ran out of memory (INFOG(1) = {code}, INFOG(2) = {infog[1]}): give "
+                "it more workspace with the option mat_mumps_icntl_14 (percent, e.g. 100), "
+                "and lift a cap mat_mumps_icntl_23 if one is set"
+            )
+        if code == -10:
+            return (
+                "MUMPS found the matrix numerically singular (INFOG(1) = -10): the body "
+                "has a motion that neither the Dirichlet conditions nor the contact hold"
+            )
+        return f"MUMPS failed with INFOG(1) = {code}, INFOG(2) = {infog[1]} (see its manual)"
+    names = {
+        1: "a zero pivot in the symbolic factorisation",
+        2: "a zero pivot: the operator is singular (a motion that the Dirichlet "
+        "conditions and the contact do not hold) or not positive definite",
+        3: "out of memory",
+        4: "a failure of the factorisation package",
+        5: "a failure in a sub-preconditioner",
+    }
+    if reason > 0:
+        return f"PC failed reason {reason}: {names.get(reason, 'see PETSc PCFailedReason')}"
+    return None
 
 
 def create_factor_solver(
-    A: PETSc.Mat, prefix: str, options: Mapping[str, Any] | None = None, gdim: int | None = None
+    A: PETSc.Mat,
+    prefix: str,
+    options: Mapping[str, Any] | None = None,
+    gdim: int | None = None,
+    what: str = "the step-1 solver",
 ) -> PETSc.KSP:
     """Create a KSP that factorises ``A`` (MUMPS Cholesky unless overridden), now.
 
@@ -151,13 +273,28 @@ def create_factor_solver(
         prefix: Options prefix of the KSP.
         options: Options overriding :data:`DEFAULT_FACTOR_OPTIONS`.
         gdim: Geometric dimension, for the default ordering (see :func:`factor_options`).
+        what: What the solver is for, in error messages.
 
     Returns:
         The KSP (the caller owns it and must ``destroy`` it).
+
+    Raises:
+        ValueError: For an option PETSc did not use.
+        RuntimeError: If PETSc cannot set the solver up, or the factorisation fails
+            (named: out of memory, singular, ...).
     """
     ksp = PETSc.KSP().create(A.getComm())
-    ksp.setOperators(A)
-    apply_options(ksp, prefix, factor_options(options, gdim), setup=True)
+    try:
+        ksp.setOperators(A)
+        apply_options(ksp, prefix, factor_options(options, gdim), setup=True, what=what)
+        failure = describe_factor_failure(ksp)
+        if failure is not None:
+            raise RuntimeError(
+                f"The factorisation of {what} (prefix {prefix!r}) failed: {failure}."
+            )
+    except BaseException:
+        ksp.destroy()
+        raise
     return ksp
 
 
@@ -187,12 +324,10 @@ def check_solve(ksp: PETSc.KSP, what: str) -> None:
     """
     reason = ksp.getConvergedReason()
     if reason < 0:
-        pc_reason = ksp.getPC().getFailedReason()
+        failure = describe_factor_failure(ksp)
         raise RuntimeError(
-            f"The linear solve of {what} failed (KSP reason {reason}, PC reason {pc_reason}). "
-            "If the factorisation hit a zero pivot, the operator is singular: the body "
-            "has a rigid motion that neither the Dirichlet conditions nor the contact "
-            "normals restrain."
+            f"The linear solve of {what} failed (KSP reason {reason}"
+            + (f": {failure})." if failure else "). With an iterative solver, check its options.")
         )
 
 

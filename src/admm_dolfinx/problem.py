@@ -100,7 +100,7 @@ def _check_forms(a: ufl.Form, L: ufl.Form) -> fem.FunctionSpace:
     if not isinstance(L, ufl.Form) or len(L.arguments()) != 1:
         raise TypeError(
             "`L` must be a linear UFL form (e.g. dot(t, v) * ds(1)); for a problem without "
-            "loads use `ufl.dot(ufl.as_vector((0,)*gdim), v) * ufl.dx`. "
+            "loads use `ufl.dot(fem.Constant(mesh, np.zeros(gdim)), v) * ufl.dx`. "
             f"Got {type(L).__name__}."
         )
     V = _argument_space(a, 0)
