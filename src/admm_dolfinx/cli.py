@@ -14,7 +14,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 from admm_dolfinx.admm import ADMMConvergenceError, ADMMSolver
-from admm_dolfinx.output import write_json
+from admm_dolfinx.output import check_output_folder, write_json
 from admm_dolfinx.report import result_summary, write_scene_outputs
 from admm_dolfinx.reproduce import TABLES, run_table
 from admm_dolfinx.scenes import SCENES
@@ -45,6 +45,11 @@ def _build_scene(args):
 def cmd_run(args) -> int:
     """Solve one scene and report (optionally a JSON summary and XDMF output)."""
     comm = MPI.COMM_WORLD
+    # the output locations are checked before the work, not after the solve
+    if args.out:
+        check_output_folder(comm, args.out)
+    if args.json:
+        check_output_folder(comm, Path(args.json).resolve().parent)
     scene = _build_scene(args)
     problem = scene.problem()
     _say(
@@ -166,7 +171,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--json", help="write a JSON summary to this file")
     run.add_argument(
-        "--out", help="write solution.xdmf, the figures and summary.json to this folder"
+        "--out",
+        help="write solution.xdmf, the figures and summary.json into this folder (created "
+        "if need be; nothing else in it is touched)",
     )
     run.set_defaults(func=cmd_run)
 

@@ -194,9 +194,8 @@ class CondensedOperator(FactorisedOperator):
                 with prefixed_options(prefix, options):
                     try:
                         self.ksp.setFromOptions()
-                        pc = self.ksp.getPC()
-                        pc.setFactorSetUpSolverType()
-                        self.factor = pc.getFactorMatrix()
+                        self.ksp.getPC().setFactorSetUpSolverType()
+                        self.factor = self.ksp.getPC().getFactorMatrix()
                         set_schur_indices(self.factor, index_set)
                         self.ksp.setUp()
                     except PETSc.Error as error:

@@ -209,7 +209,8 @@ class LocalSolver:
     """A factorised small matrix (the projected stiffness of a layer along Γ_C)."""
 
     def __init__(self, matrix: PETSc.Mat, prefix: str, options: dict | None):
-        self.ksp = create_factor_solver(matrix, prefix, options)  # factorises
+        # factorises
+        self.ksp = create_factor_solver(matrix, prefix, options, what="a layer of the r* estimate")
         self.solves = 0
 
     def solve(self, b, x):

@@ -24,8 +24,8 @@ converges in tens of applications; the small end of the wrong operator in hundre
       started from the body's responses to affine normal pressures on Γ_C (four
       multigrid-preconditioned CG steps each)
       (:mod:`admm_dolfinx.preconditioned_eigen`): no factorisation at all;
-    * at tolerances ≤ 1e-6, and for floating bodies (Rᵀ A R singular for the rigid
-      body modes R: found with a few products before any solve), Krylov–Schur on
+    * at tolerances ≤ 1e-6, and for floating bodies (found when the problem was built:
+      :mod:`admm_dolfinx.rigid_motions`), Krylov–Schur on
       M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½} with a factorisation of A + r_a K: exact, and
       independent of the partition to round-off.
 
@@ -60,7 +60,6 @@ from admm_dolfinx.contact_pencil import (
 from admm_dolfinx.dense_pencil import RIGID_TOL
 from admm_dolfinx.preconditioned_eigen import (
     BLOCK_SIZE,
-    gram_matrix,
     largest_generalized_eigenpair,
     rigid_body_modes,
 )
@@ -78,8 +77,6 @@ __all__ = [
 _KAPPA_GUESS = 1e4
 #: Accept r_a when r_a λ_max ≤ this (then λ = θ/(1 − r_aθ) amplifies errors ≤ 5x).
 _MAX_RA_LAMBDA = 4.0
-#: Rᵀ A R (rigid body modes R, orthonormal) below this × max diag(A): a floating body.
-_FLOATING_TOL = 1e-10
 #: A trial pressure whose part M-orthogonal to the previous ones is below this fraction
 #: of sqrt|Γ_C| depends on them on Γ_C (round-off leaves ~1e-16) and is dropped.
 _DEPENDENT_PRESSURE = 1e-8
@@ -109,27 +106,31 @@ def lambda_min_from_layers(space, tol, max_it, start, prefix, options, vectors):
         steps += 1
         nodes, whole = contact_layer(problem, layers)
         dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
-        index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
-        A_layer = problem.A.createSubMatrix(index_set, index_set)
         nodal = NodalMap(
             np.searchsorted(nodes, problem.contact.nodes),
             problem.contact.free_normals,
             bs,
             problem.gdim,
         )
-        hat = projected_stiffness(A_layer, nodal)
-        solver = LocalSolver(hat, prefix + "layer_", options)
-        schur = SchurOperator(space, A_layer, nodal, solver)
+        index_set = A_layer = hat = solver = schur = None
         try:
+            index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
+            A_layer = problem.A.createSubMatrix(index_set, index_set)
+            hat = projected_stiffness(A_layer, nodal)
+            solver = LocalSolver(hat, prefix + "layer_", options)
+            schur = SchurOperator(space, A_layer, nodal, solver)
             mu, vec, its = largest_eigenvalue(
                 space, schur, prefix + "lmin_", tol, max_it, [], start
             )
         finally:
-            solves += solver.solves
-            schur.free()
-            solver.destroy()
+            if solver is not None:
+                solves += solver.solves
+                solver.destroy()
+            if schur is not None:
+                schur.free()
             for obj in (hat, A_layer, index_set):
-                obj.destroy()
+                if obj is not None:
+                    obj.destroy()
         vectors.append(vec)
         start = vec  # warm start the next, wider layer
         if whole or (previous is not None and abs(previous - mu) <= tol * mu):
@@ -196,21 +197,6 @@ def lambda_max_factorised(space, operator, lambda_min, tol, max_it, prefix, star
     return lambda_max, info
 
 
-def _has_rigid_motion(A: PETSc.Mat, modes: PETSc.NullSpace) -> bool:
-    """Whether a combination of the rigid body modes R costs no energy: Rᵀ A R singular.
-
-    A rigid motion that moves a Dirichlet dof strains the elements there (energy of
-    order E/n for orthonormal R and n dofs); a free one costs round-off (≈ 1e-16 E).
-    The threshold 1e-10 × max diag(A) separates the two for any practical n. Collective.
-    """
-    gram = gram_matrix(A, modes.getVecs())
-    scale = A.getDiagonal()
-    largest = scale.max()[1]
-    scale.destroy()
-    eigenvalues = np.linalg.eigvalsh(0.5 * (gram + gram.T))
-    return bool(eigenvalues[0] <= _FLOATING_TOL * largest)
-
-
 def affine_pressure_loads(space: ContactSpace) -> list[PETSc.Vec]:
     """Nodal forces Nᵀ M q for the normal pressures q = 1, x, y (, z) on Γ_C; collective.
 
@@ -258,19 +244,24 @@ def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
     so r* does too, at the level of the eigenvalue error.
     """
     problem = space.problem
-    modes = rigid_body_modes(problem.V)
-    if _has_rigid_motion(problem.A, modes):
-        modes.destroy()
+    if problem.rigid_motions.floating:
         raise NeedsFactorisation("the body has a rigid motion (A is singular)")
+    modes = rigid_body_modes(problem.V)
     B = problem.A.duplicate(copy=True)
-    B.setOption(PETSc.Mat.Option.SPD, True)
-    B.setNearNullSpace(modes)
     K_unit = problem.K.copy()
-    diagonal = K_unit.getDiagonal()
-    k_scale = diagonal.max()[1]
-    diagonal.destroy()
-    K_unit.scale(1.0 / k_scale)
-    loads = affine_pressure_loads(space)
+    loads: list[PETSc.Vec] = []
+    try:
+        B.setOption(PETSc.Mat.Option.SPD, True)
+        B.setNearNullSpace(modes)
+        diagonal = K_unit.getDiagonal()
+        k_scale = diagonal.max()[1]
+        diagonal.destroy()
+        K_unit.scale(1.0 / k_scale)
+        loads = affine_pressure_loads(space)
+    except BaseException:
+        for obj in (B, K_unit, modes, *loads):
+            obj.destroy()
+        raise
     iterations = 0
     counts: dict[str, float] = {}
 

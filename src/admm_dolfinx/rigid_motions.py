@@ -75,7 +75,8 @@ def _gram(left: list[PETSc.Vec], right: list[PETSc.Vec]) -> np.ndarray:
 
 
 def _describe(z: npt.NDArray, gdim: int) -> str:
-    z = z / np.max(np.abs(z))
+    z = z / z[np.argmax(np.abs(z))]  # the largest component +1
+    z = np.where(np.abs(z) < 1e-8, 0.0, z) + 0.0  # no -0
     parts = []
     t = z[:gdim]
     if np.linalg.norm(t) > 1e-3:

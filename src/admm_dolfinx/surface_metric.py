@@ -77,6 +77,20 @@ class SurfaceMetric(PetscOwner):
 
     def __init__(self, problem: ContactProblem):
         self.problem = problem
+        self.surface_stiffness = self.normal_map = self.normal_stiffness = None
+        self._rank0: dict | None = None
+        self._k_max_squared: float | None = None
+        self._work: tuple[PETSc.Vec, PETSc.Vec] | None = None
+        self._force: PETSc.Vec | None = None
+        try:
+            self._build()
+        except BaseException:
+            self.destroy()  # collective: every rank raised alike
+            raise
+
+    def _build(self) -> None:
+        """Assemble L_Γ, P_N and Nᵀ L_Γ N; gather L_Γ on the contact nodes to rank 0."""
+        problem = self.problem
         comm = problem.comm
         c = problem.contact
         Q = c.Q
@@ -134,10 +148,7 @@ class SurfaceMetric(PetscOwner):
             return RuntimeError(f"Gathering L_Γ on rank 0 failed: {name}: {text}")
 
         #: L_Γ and M on the contact nodes, on rank 0 (None elsewhere).
-        self._rank0: dict | None = run_on_rank0(comm, build, failure, broadcast=False)
-        self._k_max_squared: float | None = None
-        self._work: tuple[PETSc.Vec, PETSc.Vec] | None = None
-        self._force: PETSc.Vec | None = None
+        self._rank0 = run_on_rank0(comm, build, failure, broadcast=False)
 
     @property
     def k_max_squared(self) -> float:

@@ -174,11 +174,12 @@ def _largest_on_layer(problem, matrix, prefix, petsc_options):
     row0 = problem.A.getOwnershipRange()[0]
     nodes, whole = contact_layer(problem, LAYER_RINGS)
     dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
-    index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
-    stiffness = problem.A.createSubMatrix(index_set, index_set)
-    penalty = matrix.createSubMatrix(index_set, index_set)
-    start = penalty.createVecRight()
+    index_set = stiffness = penalty = start = None
     try:
+        index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
+        stiffness = problem.A.createSubMatrix(index_set, index_set)
+        penalty = matrix.createSubMatrix(index_set, index_set)
+        start = penalty.createVecRight()
         # unit diagonal scales: SLEPc's relative residual test is then unit-free
         a_scale = mean_diagonal(stiffness)
         b_scale = abs(penalty.getDiagonal().max()[1])
@@ -194,7 +195,8 @@ def _largest_on_layer(problem, matrix, prefix, petsc_options):
         vec.destroy()
     finally:
         for obj in (start, penalty, stiffness, index_set):
-            obj.destroy()
+            if obj is not None:
+                obj.destroy()
     mu = value * b_scale / a_scale
     return mu, {"layers": "all" if whole else LAYER_RINGS, "restarts": its}
 
@@ -211,7 +213,12 @@ def _layer_eigenvalue(penalty, stiffness, start, prefix, petsc_options):
         eps.setTolerances(tol=EIGEN_TOL, max_it=200)
         st = eps.getST()
         st.setType(SLEPc.ST.Type.SHIFT)
-        apply_options(st.getKSP(), prefix + "st_", factor_options(petsc_options, 3))
+        apply_options(
+            st.getKSP(),
+            prefix + "st_",
+            factor_options(petsc_options, 3),
+            what="the layer solver of the surface metric's μ_max",
+        )
         return solve_top_eigenpair(
             eps,
             stiffness.createVecRight,

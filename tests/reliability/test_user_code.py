@@ -1,0 +1,166 @@
+"""User code that fails, or answers differently, on one rank only: never a hang.
+
+An obstacle's gap, a callback and a user's Dirichlet conditions run on every rank. If
+one rank raises, every rank raises; if one rank asks to stop, every rank stops. Each
+test would hang under ``mpiexec -n 2`` without that (and then fail on its timeout).
+Also: user code cannot corrupt the problem's data (read-only inputs), and garbage
+collection is never collective.
+"""
+
+from __future__ import annotations
+
+import gc
+
+import numpy as np
+import pytest
+import ufl
+from dolfinx import fem
+from mpi4py import MPI
+
+from admm_dolfinx import ADMMSolver, ContactProblem, Obstacle, Plane
+from admm_dolfinx.scenes import example1
+
+pytestmark = pytest.mark.timeout(60)
+COMM = MPI.COMM_WORLD
+LAST = COMM.size - 1
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return example1(COMM, h=1 / 8, mesher="builtin")
+
+
+def _problem(scene, **changes):
+    args = {
+        "a": scene.a,
+        "L": scene.L,
+        "bcs": scene.bcs,
+        "facet_tags": scene.facet_tags,
+        "contact_marker": scene.contact_marker,
+        "obstacle": scene.obstacle,
+    }
+    args.update(changes)
+    return ContactProblem(**args)
+
+
+class FailsOnLastRank(Obstacle):
+    def gap(self, x, n):
+        if COMM.rank == LAST:
+            raise ValueError("this rank's gap failed")
+        return Plane((0.0, -0.01), (0.0, 1.0)).gap(x, n)
+
+
+class WritesIntoItsInput(Obstacle):
+    def gap(self, x, n):
+        n *= -1.0  # corrupts the normals if it could
+        return np.full(x.shape[0], 0.01)
+
+
+def test_gap_raising_on_one_rank_raises_on_every_rank(scene):
+    with pytest.raises(ValueError, match="gap failed"):
+        _problem(scene, obstacle=FailsOnLastRank())
+
+
+def test_gap_cannot_modify_its_inputs(scene):
+    with pytest.raises(ValueError, match="read-only"):
+        _problem(scene, obstacle=WritesIntoItsInput())
+    # and a good problem built afterwards has the right normals
+    problem = _problem(scene)
+    assert np.allclose(problem.contact.normals, [0.0, -1.0])
+
+
+def test_update_obstacle_raising_on_one_rank_keeps_the_old_obstacle(scene):
+    problem = _problem(scene)
+    gap = problem.contact.gap.copy()
+    with pytest.raises(ValueError, match="gap failed"):
+        problem.update_obstacle(FailsOnLastRank())
+    assert np.array_equal(problem.contact.gap, gap) and problem.obstacle is scene.obstacle
+
+
+def test_callback_raising_on_one_rank_raises_on_every_rank(scene):
+    def callback(k, u, lam):
+        if COMM.rank == LAST and k == 2:
+            raise RuntimeError("this rank's callback failed")
+        return False
+
+    with ADMMSolver(_problem(scene), polish=False) as solver:
+        with pytest.raises(RuntimeError, match="callback failed"):
+            solver.solve(callback=callback)
+        # the solver is still usable afterwards
+        assert solver.solve().converged
+
+
+def test_callback_stopping_on_one_rank_stops_every_rank(scene):
+    with ADMMSolver(_problem(scene), polish=False) as solver:
+        result = solver.solve(callback=lambda k, u, lam: COMM.rank == LAST and k == 3)
+    assert result.status == "callback" and result.iterations == 3
+
+
+def test_dirichlet_condition_on_another_space_is_refused(scene):
+    """A P2 space, or an identical copy of V: DOLFINx's assembly would silently skip it."""
+    for space in (
+        fem.functionspace(scene.mesh, ("Lagrange", 2, (2,))),
+        fem.functionspace(scene.mesh, ("Lagrange", 1, (2,))),
+    ):
+        dofs = fem.locate_dofs_topological(space, 1, scene.facet_tags.find(1))
+        bc = fem.dirichletbc(np.zeros(2), dofs, space)
+        with pytest.raises(ValueError, match=r"bcs\[0\].*not the displacement space"):
+            _problem(scene, bcs=[bc])
+
+
+def test_nan_inputs_are_refused_up_front(scene):
+    V = scene.V
+    v = ufl.TestFunction(V)
+    nan_load = ufl.dot(fem.Constant(scene.mesh, np.array([0.0, np.nan])), v) * ufl.dx
+    with pytest.raises(ValueError, match="load vector.*NaN"):
+        _problem(scene, L=nan_load)
+    inf_load = ufl.dot(fem.Constant(scene.mesh, np.array([np.inf, 0.0])), v) * ufl.dx
+    with pytest.raises(ValueError, match="load vector.*NaN"):
+        _problem(scene, L=inf_load)
+    dofs = fem.locate_dofs_topological(V, 1, scene.facet_tags.find(1))
+    bad_bc = fem.dirichletbc(np.array([np.nan, 0.0]), dofs, V)
+    with pytest.raises(ValueError, match=r"Dirichlet condition bcs\[0\].*NaN"):
+        _problem(scene, bcs=[bad_bc])
+
+    class Absurd(Obstacle):
+        def gap(self, x, n):
+            return np.full(x.shape[0], -1e300)
+
+    with pytest.raises(ValueError, match="deeper than the body's size"):
+        _problem(scene, obstacle=Absurd())
+
+
+def test_nan_warm_start_is_refused(scene):
+    problem = _problem(scene)
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+        result.u.x.array[:] = np.nan
+        with pytest.raises(ValueError, match="warm start.*NaN"):
+            solver.solve(warm_start=result)
+
+
+def test_nan_load_update_is_refused(scene):
+    msh, V = scene.mesh, scene.V
+    t = fem.Constant(msh, np.array([0.0, -10.0]))
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=scene.facet_tags)
+    problem = _problem(scene, L=ufl.dot(t, ufl.TestFunction(V)) * ds(2))
+    with ADMMSolver(problem) as solver:
+        t.value[1] = np.nan
+        with pytest.raises(ValueError, match="load vector.*NaN"):
+            solver.solve()
+
+
+def test_garbage_collection_is_never_collective(scene):
+    """A solver in a reference cycle, collected on one rank only, must not deadlock."""
+    problem = _problem(scene)
+    solver = ADMMSolver(problem)
+    solver.cycle = solver  # only the cycle collector can free it
+    del solver
+    if COMM.rank == 0:
+        gc.collect()  # the other ranks do not collect now
+    COMM.Barrier()
+    # collective work goes on: it would deadlock if rank 0's collection had destroyed a
+    # parallel PETSc object collectively
+    with ADMMSolver(problem) as again:
+        assert again.solve().converged
+    gc.collect()
