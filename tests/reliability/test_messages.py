@@ -52,7 +52,7 @@ def _elastic_form(scene, E):
 
 
 def test_negative_modulus_names_the_material(scene):
-    with pytest.raises(ValueError, match="non-positive diagonal.*E > 0"):
+    with pytest.raises(ValueError, match=r"non-positive diagonal.*E > 0"):
         _problem(scene, a=_elastic_form(scene, -2000.0))
 
 
@@ -112,7 +112,7 @@ def test_mumps_memory_failure_is_named(option):
     """Too little workspace (a 1 MB cap, or 90 % less than estimated): named as such,
     not blamed on the Dirichlet conditions or a rigid motion."""
     problem = example1(COMM, h=1 / 32, mesher="builtin").problem()
-    with pytest.raises(RuntimeError, match="MUMPS ran out of memory.*mat_mumps_icntl_14"):
+    with pytest.raises(RuntimeError, match=r"MUMPS ran out of memory.*mat_mumps_icntl_14"):
         ADMMSolver(problem, penalty=3000.0, petsc_options=option)
 
 

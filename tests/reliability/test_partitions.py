@@ -14,11 +14,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from mpi4py import MPI
-from partitions import CELLS, PARTITIONS, gathered, owners, pressed_box
 
 from admm_dolfinx import ADMMSolver, Ball, Plane, estimate_penalty
 from admm_dolfinx.baselines import solve_snes_vi
 from admm_dolfinx.kkt import compute_kkt_residuals
+
+from partitions import CELLS, PARTITIONS, gathered, owners, pressed_box
 
 pytestmark = pytest.mark.timeout(180)
 COMM = MPI.COMM_WORLD

@@ -112,10 +112,10 @@ def test_nan_inputs_are_refused_up_front(scene):
     V = scene.V
     v = ufl.TestFunction(V)
     nan_load = ufl.dot(fem.Constant(scene.mesh, np.array([0.0, np.nan])), v) * ufl.dx
-    with pytest.raises(ValueError, match="load vector.*NaN"):
+    with pytest.raises(ValueError, match=r"load vector.*NaN"):
         _problem(scene, L=nan_load)
     inf_load = ufl.dot(fem.Constant(scene.mesh, np.array([np.inf, 0.0])), v) * ufl.dx
-    with pytest.raises(ValueError, match="load vector.*NaN"):
+    with pytest.raises(ValueError, match=r"load vector.*NaN"):
         _problem(scene, L=inf_load)
     dofs = fem.locate_dofs_topological(V, 1, scene.facet_tags.find(1))
     bad_bc = fem.dirichletbc(np.array([np.nan, 0.0]), dofs, V)
@@ -135,7 +135,7 @@ def test_nan_warm_start_is_refused(scene):
     with ADMMSolver(problem) as solver:
         result = solver.solve()
         result.u.x.array[:] = np.nan
-        with pytest.raises(ValueError, match="warm start.*NaN"):
+        with pytest.raises(ValueError, match=r"warm start.*NaN"):
             solver.solve(warm_start=result)
 
 
@@ -146,7 +146,7 @@ def test_nan_load_update_is_refused(scene):
     problem = _problem(scene, L=ufl.dot(t, ufl.TestFunction(V)) * ds(2))
     with ADMMSolver(problem) as solver:
         t.value[1] = np.nan
-        with pytest.raises(ValueError, match="load vector.*NaN"):
+        with pytest.raises(ValueError, match=r"load vector.*NaN"):
             solver.solve()
 
 

@@ -98,9 +98,12 @@ def test_scale_invariance(E):
         assert result.converged
         check = residuals(p, scene.a, scene.L, result)
         assert max(check.values()) <= 2e-6
-    assert result.iterations == ADMMSolver(
-        example1(COMM, h=1 / 8, mesher="builtin").problem(), polish=False
-    ).solve().iterations
+    assert (
+        result.iterations
+        == ADMMSolver(example1(COMM, h=1 / 8, mesher="builtin").problem(), polish=False)
+        .solve()
+        .iterations
+    )
     diff = np.abs(result.u.x.array - reference.u.x.array).max()
     assert diff <= 1e-6 * np.abs(reference.u.x.array).max()
 
