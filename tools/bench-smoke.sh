@@ -22,5 +22,6 @@ run() {
 for b in "${parallel[@]}" work_precision parallel_scaling; do run "$py" "benchmarks/$b.py" --quick; done
 run "$py" benchmarks/hard_cases.py --small
 run "$py" benchmarks/penalty_accuracy.py
+run "$py" benchmarks/strips.py --quick
 for b in "${parallel[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done
 echo "benchmarks: all ran"

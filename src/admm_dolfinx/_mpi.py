@@ -191,6 +191,8 @@ class RankLayout:
         vector = local.ndim == 1
         block = np.ascontiguousarray(local.reshape(1, -1) if vector else local)
         k = block.shape[0]
+        if k == 0:
+            return np.zeros((0, self.total)) if self.comm.rank == 0 else None
         if block.shape[1] != self.local_size:
             raise ValueError(  # pragma: no cover - internal misuse
                 f"internal: {block.shape[1]} values on rank {self.comm.rank}, layout has "

@@ -87,6 +87,7 @@ from admm_dolfinx.penalty import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_
 from admm_dolfinx.petsc import is_factorisation, unique_prefix
 from admm_dolfinx.polish import ActiveSetPolish
 from admm_dolfinx.problem import ContactProblem
+from admm_dolfinx.sparse_polish import SparsePolish
 from admm_dolfinx.surface_metric import SurfaceMetric, SurfaceProjection
 from admm_dolfinx.surface_penalty import SurfacePenalty, estimate_surface_penalty
 
@@ -227,7 +228,7 @@ class ADMMResult:
             at = polish["polished_at"]
             lines.append(
                 f"  polish: {'exact state from iteration ' + str(at) if at else 'not used'}"
-                f" ({polish['attempts']} attempts, {polish['rounds']} dense solves, "
+                f" ({polish['attempts']} attempts, {polish['rounds']} active-set rounds, "
                 f"{polish['time']:.3f} s)"
             )
         if self.extra.get("warning"):
@@ -442,7 +443,7 @@ class ADMMSolver:
         if condensed is None:
             condensed = serial and schur_possible and (auto or polish is True)
         #: Active-set polishing (None when off).
-        self.polisher: ActiveSetPolish | None = None
+        self.polisher: ActiveSetPolish | SparsePolish | None = None
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
         #: β and r of the surface metric (None with the paper's metric r M).
@@ -466,6 +467,15 @@ class ADMMSolver:
                 schur_source = private
             if schur_source is not None and polish is not False:
                 self.polisher = ActiveSetPolish.from_operator(problem, schur_source)
+            elif (
+                polish is not False
+                and (auto or polish)
+                and problem.gdim == 2
+                and factor_opts is not None
+            ):
+                # 2D contact zones too large for the dense S_C: the same polishing with
+                # sparse factorisations of the body
+                self.polisher = SparsePolish(problem, self.prefix + "polish_", factor_opts)
             surface = penalty_metric == "surface" or (
                 penalty_metric == "auto"
                 and problem.gdim == 3
@@ -949,6 +959,8 @@ class ADMMSolver:
         """Free the KSP, the step-1 operator and the surface metric's objects; collective."""
         if getattr(self, "operator", None) is not None:
             self.operator.destroy()
+        if getattr(self, "polisher", None) is not None:
+            self.polisher.destroy()
         for name in ("_projection", "_metric"):
             obj = getattr(self, name, None)
             if obj is not None:

@@ -56,6 +56,7 @@ from admm_dolfinx.petsc_schur import SchurBlock, factorize_schur, full_symmetric
 from admm_dolfinx.problem import ContactProblem
 
 __all__ = [
+    "DENSE_COST_RATIO",
     "MAX_CONDENSED_CONTACT_NODES",
     "CondensedOperator",
     "ContactSupport",
@@ -66,16 +67,25 @@ __all__ = [
 # ---------------------------------------------------------------------------------
 #: Above this many contact nodes the automatic choices leave the condensed
 #: factorisation aside: S_C (up to 2m × 2m in 2D) would take over 250 MB and its dense
-#: front would dominate the factorisation. Example 1 at h = 1/256 has m = 512.
+#: front would dominate the factorisation.
 MAX_CONDENSED_CONTACT_NODES = 4000
+#: The dense work on Γ_C grows like m³, a sparse factorisation of the 2D body like
+#: n^{3/2}, the first at dense-BLAS speed: the condensed path is chosen while
+#: m³ ≤ DENSE_COST_RATIO · n^{3/2}. At this ratio both paths cost the same on the
+#: 20 × 0.1 strip with m = 1000 (``python benchmarks/strips.py`` times both); compact
+#: bodies (m ≈ √n, the paper's Example 1) lie far on the dense side, thin ones with
+#: thousands of contact nodes on the sparse side (sparse polishing,
+#: :mod:`admm_dolfinx.sparse_polish`).
+DENSE_COST_RATIO = 300.0
 
 
 def condensed_factor_applies(
     problem: ContactProblem, options: Mapping[str, Any] | None, *, any_dimension: bool = False
 ) -> bool:
-    """Whether :class:`CondensedOperator` applies (MUMPS; by default 2D, m not too large).
+    """Whether :class:`CondensedOperator` applies (MUMPS; by default 2D, dense work cheap).
 
-    By default: 2D with at most :data:`MAX_CONDENSED_CONTACT_NODES` contact nodes.
+    By default: 2D, at most :data:`MAX_CONDENSED_CONTACT_NODES` contact nodes, and
+    m³ ≤ :data:`DENSE_COST_RATIO` · n^{3/2} (n the number of dofs).
 
     Args:
         problem: The contact problem.
@@ -87,7 +97,13 @@ def condensed_factor_applies(
         return False
     if any_dimension:
         return True
-    return problem.gdim == 2 and problem.contact.num_global <= MAX_CONDENSED_CONTACT_NODES
+    m = problem.contact.num_global
+    n = problem.V.dofmap.index_map.size_global * problem.V.dofmap.index_map_bs
+    return (
+        problem.gdim == 2
+        and m <= MAX_CONDENSED_CONTACT_NODES
+        and float(m) ** 3 <= DENSE_COST_RATIO * float(n) ** 1.5
+    )
 
 
 @dataclass

@@ -15,13 +15,77 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+import ufl
+from dolfinx import fem, mesh
 from mpi4py import MPI
 
+from admm_dolfinx.material import LinearElastic
 from admm_dolfinx.meshing import global_bounds
 from admm_dolfinx.obstacles import Obstacle, Plane
 from admm_dolfinx.scenes import Scene, example1, example2, example3
 
-__all__ = ["CASES", "build_case", "distort", "grade"]
+__all__ = ["CASES", "build_case", "distort", "grade", "strip"]
+
+
+def strip(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    cells: int = 1000,
+    length: float = 20.0,
+    thickness: float = 0.1,
+    layers: int = 10,
+    E: float = 1.0,
+    nu: float = 0.3,
+    pressure: float = 1e-3,
+    gap: float = 1e-3,
+) -> Scene:
+    """A long thin strip, clamped at its left end, pressed onto a rigid plane below.
+
+    (0, length) × (0, thickness) in plane strain, ``cells`` × ``layers`` squares of
+    right-diagonal triangles (DOLFINx's builtin mesh, no gmsh). A uniform pressure on
+    the top side pushes the strip down by more than the gap, so that it lies on the
+    plane except near the clamp. The strip bends like a beam: its smoothest contact
+    mode is 1e9–1e10 times more compliant than its roughest (κ of the contact pencil),
+    which is what broke the dense r* and needs active-set polishing to converge.
+    Γ_C = the bottom side, with ``cells`` contact nodes (the clamped corner aside).
+    """
+    tags = {"bottom": 1, "top": 2, "left": 3}
+    msh = mesh.create_rectangle(comm, [[0.0, 0.0], [length, thickness]], [cells, layers])
+    fdim = 1
+    msh.topology.create_connectivity(fdim, 2)
+    found = {
+        name: mesh.locate_entities_boundary(msh, fdim, where)
+        for name, where in (
+            ("bottom", lambda x: np.isclose(x[1], 0.0)),
+            ("top", lambda x: np.isclose(x[1], thickness)),
+            ("left", lambda x: np.isclose(x[0], 0.0)),
+        )
+    }
+    facets = np.concatenate(list(found.values()))
+    values = np.concatenate([np.full(f.size, tags[k]) for k, f in found.items()])
+    facets, first = np.unique(facets, return_index=True)
+    facet_tags = mesh.meshtags(msh, fdim, facets.astype(np.int32), values[first].astype(np.int32))
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    t = fem.Constant(msh, np.array([0.0, -pressure]))
+    clamp = fem.locate_dofs_topological(V, fdim, facet_tags.find(tags["left"]))
+    return Scene(
+        name="strip",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=[fem.dirichletbc(np.zeros(2), clamp, V)],
+        contact_marker=tags["bottom"],
+        obstacle=Plane(point=(0.0, -gap), normal=(0.0, 1.0)),
+        h=length / cells,
+        info={"E": E, "nu": nu, "cells": cells, "length": length, "thickness": thickness},
+    )
 
 
 def grade(scene: Scene) -> Scene:

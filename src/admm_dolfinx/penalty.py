@@ -53,7 +53,7 @@ from dolfinx.common import Timer
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx._mpi import run_on_rank0
+from admm_dolfinx._mpi import RankLayout, run_on_rank0
 from admm_dolfinx.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.contact_pencil import (
     ContactSpace,
@@ -250,10 +250,21 @@ def _dense_extremes(problem, condensed, prefix, petsc_options):
     try:
         t1 = time.perf_counter()
 
+        # the rigid directions M^½ N d of the floating motions, in the weights' node order
+        c = problem.contact
+        layout = RankLayout(problem.comm, c.dofs.size)
+        rigid = layout.gather(problem.rigid_motions.normal_motion * np.sqrt(c.mass))
+        # the affine pressures 1, x, y (, z) on Γ_C, to estimate λ_max
+        smooth = layout.gather(np.vstack([np.ones(c.dofs.size), c.coordinates.T]) * np.sqrt(c.mass))
+
         def dense() -> tuple[float, float, int]:
             with Timer("admm_dolfinx: r* dense pencil"):
                 return extremes_from_schur(
-                    condensed.schur, condensed.k_cc, condensed.support.weights, prefix + "dense_"
+                    condensed.schur,
+                    condensed.k_cc,
+                    condensed.support.weights,
+                    rigid=rigid.T,
+                    smooth=smooth.T,
                 )
 
         def failure(name: str, text: str, _: bool) -> Exception:

@@ -57,7 +57,6 @@ from admm_dolfinx.contact_pencil import (
     mean_diagonal,
     projected_stiffness,
 )
-from admm_dolfinx.dense_pencil import RIGID_TOL
 from admm_dolfinx.preconditioned_eigen import (
     BLOCK_SIZE,
     largest_generalized_eigenpair,
@@ -138,37 +137,46 @@ def lambda_min_from_layers(space, tol, max_it, start, prefix, options, vectors):
         previous, layers = mu, 2 * layers
 
 
-def _lambda_max_loop(lambda_min: float, top_eigenpair) -> tuple[float, dict[str, Any]]:
-    """λ_max = θ/(1 − r_a θ) from θ_max of K x = θ (A + r_a K) x, deflating rigid motions.
+def _lambda_max_loop(
+    lambda_min: float, top_eigenpair, rigid: list[PETSc.Vec]
+) -> tuple[float, dict[str, Any]]:
+    """λ_max = θ/(1 − r_a θ) from θ_max of K x = θ (A + r_a K) x, rigid motions deflated.
 
     Args:
         lambda_min: λ_min, to choose the first r_a.
-        top_eigenpair: ``(r_a, deflation) -> (θ, vector, iterations)``; the vector is
-            kept (and destroyed here) when it is a rigid motion, destroyed otherwise.
+        top_eigenpair: ``(r_a, deflation) -> (θ, vector, iterations)``; the caller's
+            vector is destroyed here.
+        rigid: The rigid directions of the floating body's motions (known from the
+            problem, :mod:`admm_dolfinx.rigid_motions`), deflated: nothing is
+            classified by the size of θ, which for a very compliant body (κ ≈ 1e10)
+            would mistake its smoothest modes for rigid ones.
 
     Returns:
         λ_max and details (r_aux, rigid_modes, iterations of the last solve).
     """
     r_a = 1.0 / (_KAPPA_GUESS * lambda_min)
-    rigid: list[PETSc.Vec] = []
-    try:
-        for _attempt in range(8):
-            theta, vec, its = top_eigenpair(r_a, rigid)
-            x = r_a * theta
-            if x > 1.0 - RIGID_TOL:  # a rigid motion seen by Γ_C: deflate it
-                rigid.append(vec)
-                continue
-            vec.destroy()
-            lambda_max = theta / (1.0 - x)
-            if r_a * lambda_max <= _MAX_RA_LAMBDA:
-                return lambda_max, {"r_aux": r_a, "rigid_modes": len(rigid), "restarts_max": its}
-            r_a = 1.0 / lambda_max  # too large: the map θ → λ amplified errors
-        raise RuntimeError(  # pragma: no cover - needs > 6 rigid modes or a pathological spectrum
-            "could not separate λ_max from rigid motions"
-        )
-    finally:
-        for vec in rigid:
-            vec.destroy()
+    for _attempt in range(8):
+        theta, vec, its = top_eigenpair(r_a, rigid)
+        vec.destroy()
+        x = r_a * theta
+        lambda_max = theta / (1.0 - x)
+        if r_a * lambda_max <= _MAX_RA_LAMBDA:
+            return lambda_max, {"r_aux": r_a, "rigid_modes": len(rigid), "restarts_max": its}
+        r_a = 1.0 / lambda_max  # too large: the map θ → λ amplified errors
+    raise RuntimeError(  # pragma: no cover - a pathological spectrum
+        "could not separate λ_max from rigid motions"
+    )
+
+
+def _rigid_directions(space: ContactSpace) -> list[PETSc.Vec]:
+    """M^½ N d of the floating motions d, as distributed m-vectors (caller destroys)."""
+    problem = space.problem
+    vectors = []
+    for motion in problem.rigid_motions.normal_motion:
+        vec = space.create_vec()
+        vec.array[:] = space.sqrt_mass * motion
+        vectors.append(vec)
+    return vectors
 
 
 def lambda_max_factorised(space, operator, lambda_min, tol, max_it, prefix, start):
@@ -192,7 +200,12 @@ def lambda_max_factorised(space, operator, lambda_min, tol, max_it, prefix, star
             start,
         )
 
-    lambda_max, info = _lambda_max_loop(lambda_min, top)
+    rigid = _rigid_directions(space)
+    try:
+        lambda_max, info = _lambda_max_loop(lambda_min, top, rigid)
+    finally:
+        for vec in rigid:
+            vec.destroy()
     info.update(solves_max=operator.solves - solves_before, lambda_max_method="factorised")
     return lambda_max, info
 
@@ -267,8 +280,6 @@ def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
 
     def top(r_a, rigid):
         nonlocal iterations
-        if rigid:  # a rigid motion _has_rigid_motion missed: the factorised path deflates it
-            raise NeedsFactorisation("Γ_C sees a rigid motion of the body")
         problem.A.copy(B, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         B.axpy(r_a, problem.K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         # SLEPc's relative residual test is not invariant under scaling of K and B
@@ -289,7 +300,7 @@ def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
         return theta * k_scale / b_scale, vec, its
 
     try:
-        lambda_max, info = _lambda_max_loop(lambda_min, top)
+        lambda_max, info = _lambda_max_loop(lambda_min, top, [])
     except RuntimeError as error:  # LOBPCG did not converge
         raise NeedsFactorisation(str(error)) from error
     finally:

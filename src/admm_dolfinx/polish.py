@@ -101,6 +101,9 @@ class ActiveSetPolish:
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0
 
+    def destroy(self) -> None:
+        """Nothing to free (the dense arrays are NumPy's)."""
+
     @classmethod
     def from_operator(cls, problem: ContactProblem, operator) -> ActiveSetPolish:
         """From a :class:`~admm_dolfinx.condensed.CondensedOperator` (its arrays outlive it)."""

@@ -43,9 +43,13 @@ class RigidMotions:
     Attributes:
         floating: How many independent rigid motions cost no energy (0: A is
             positive definite). Γ_C's normals see each of them.
+        normal_motion: (N d_i)_j for a basis d_1 … d_floating of them, at the owned
+            contact nodes, shape (floating, m_loc): the directions of the contact
+            pencil that no penalty changes (its eigenvalue λ = ∞).
     """
 
     floating: int
+    normal_motion: npt.NDArray[np.float64]
 
 
 def _basis(V: fem.FunctionSpace, center: npt.NDArray, length: float) -> list[PETSc.Vec]:
@@ -141,7 +145,7 @@ def analyse_rigid_motions(
     mu, W = np.linalg.eigh(Li @ G @ Li.T)
     floating = W[:, mu <= FLOATING_TOL * stiffness_scale]
     if floating.shape[1] == 0:
-        return RigidMotions(floating=0)
+        return RigidMotions(floating=0, normal_motion=np.zeros((0, nodes.size)))
     Z = Li.T @ floating  # coefficients of the floating motions in the basis
     motions = np.einsum("kjd,kf->fjd", local, Z) if local.size else np.zeros((Z.shape[1], 0, gdim))
     normal_part = np.einsum("fjd,jd->fj", motions, normals) if motions.size else motions[..., 0]
@@ -162,4 +166,4 @@ def analyse_rigid_motions(
             "displacement on a symmetry line or plane (fem.dirichletbc(0.0, dofs, "
             "V.sub(i))) or at a point."
         )
-    return RigidMotions(floating=int(floating.shape[1]))
+    return RigidMotions(floating=int(floating.shape[1]), normal_motion=normal_part)
