@@ -1,6 +1,6 @@
 # admm_dolfinx: two commands on a fresh machine.
 #   make demo   Example 1 of the paper, end to end (creates/refreshes .venv first)
-#   make test   the test suite, serially and under mpiexec -n 2 (and -n 3), every demo
+#   make test   the test suite, serially and under mpiexec -n 2 (and -n 3, -n 4), every demo
 #               serially and under mpiexec -n 2, a quick `reproduce all`, and every
 #               benchmark at its smallest size
 # and, for reproduction:
@@ -40,9 +40,14 @@ test: test-serial test-mpi reproduce-quick test-demos test-benchmarks
 test-serial: venv
 	$(PY) $(PYTEST)
 
+# -n 2: everything; -n 3 and -n 4 (oversubscribed on two cores): the parallel
+# comparisons and the reliability suite's partition matrix (tests/reliability).
 test-mpi: venv
 	$(MPIEXEC) -n 2 $(PY) -m mpi4py $(PYTEST)
-	$(MPIEXEC) -n 3 $(PY) -m mpi4py $(PYTEST) tests/test_parallel.py
+	$(MPIEXEC) -n 3 $(PY) -m mpi4py $(PYTEST) tests/test_parallel.py tests/reliability
+	$(MPIEXEC) -n 4 $(PY) -m mpi4py $(PYTEST) tests/reliability/test_user_code.py \
+		tests/reliability/test_wrong_answers.py tests/reliability/test_partitions.py \
+		-k "not paths and not estimates and not load_steps"
 
 test-demos: venv
 	$(PY) demos/run_all.py
