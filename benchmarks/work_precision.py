@@ -40,6 +40,7 @@ import scipy.sparse as sp
 from mpi4py import MPI
 
 import admm_dolfinx
+from admm_dolfinx import baselines
 from admm_dolfinx.baselines import solve_snes_vi
 from admm_dolfinx.scenes import example1, example3
 from admm_dolfinx.sweep import sample_penalty
@@ -47,31 +48,10 @@ from admm_dolfinx.sweep import sample_penalty
 TOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9)
 
 
-def petsc_to_scipy(mat):
-    indptr, indices, data = mat.getValuesCSR()
-    return sp.csr_matrix((data, indices, indptr), shape=mat.getSize())
-
-
 def extract_qp(problem):
     """P, q, C, upper bound, free dofs and u_D of the QP on the free dofs (serial)."""
-    c = problem.contact
-    bs = problem.V.dofmap.index_map_bs
-    n = problem.A.getSize()[0]
-    fixed = np.zeros(n, dtype=bool)
-    for bc in problem.bcs:
-        fixed[bc.dof_indices()[0]] = True
-    free = np.flatnonzero(~fixed)
-    A = petsc_to_scipy(problem.A)
-    load = problem.load_vector().array_r.copy()
-    u_d = np.where(fixed, load, 0.0)
-    rows = np.repeat(np.arange(c.nodes.size), problem.gdim)
-    cols = (c.nodes[:, None] * bs + np.arange(problem.gdim)[None, :]).ravel()
-    N = sp.csr_matrix((c.normals.ravel(), (rows, cols)), shape=(c.nodes.size, n))
-    finite = np.isfinite(c.gap)
-    upper = np.where(finite, c.gap - N @ u_d, np.inf)
-    scale = np.sqrt(c.mass)
-    C = sp.diags(scale) @ N[:, free]
-    return A[free][:, free].tocsc(), -load[free], C.tocsc(), scale * upper, free, u_d
+    qp = baselines.extract_qp(problem)
+    return qp.P, qp.q, qp.C, qp.upper, qp.free, qp.u_d
 
 
 def report(point):

@@ -111,16 +111,23 @@ class _BadGap(Obstacle):
         g[x[:, 0] > 1.5] = self.value
         return g
 
+    def signed_distance(self, x):
+        return self.gap(x, None), np.tile([0.0, 1.0], (x.shape[0], 1))
 
+
+@pytest.mark.parametrize("model", ["obstacle", "body"])
 @pytest.mark.parametrize("value", [math.nan, -math.inf])
-def test_bad_gap(scene, value):
-    with pytest.raises(ValueError, match=r"NaN or -inf at .* contact node"):
-        _problem(scene, obstacle=_BadGap(value))
+def test_bad_gap(scene, value, model):
+    # a -inf gap along the body's normal: a node it cannot push out (explained as such)
+    pattern = r"NaN or -inf at .* contact node|gap along the normal is -inf"
+    with pytest.raises(ValueError, match=pattern):
+        _problem(scene, obstacle=_BadGap(value), contact_normal=model)
 
 
 def test_infinite_gap_means_never_touching(scene):
-    """A disc under the middle of Γ_C: rays from the ends miss it (g = +inf) and that works."""
-    problem = _problem(scene, obstacle=Ball(center=(1.0, -0.31), radius=0.3))
+    """A disc under the middle of Γ_C: in the paper's model the rays from the ends miss
+    it (g = +inf), and that works."""
+    problem = _problem(scene, obstacle=Ball(center=(1.0, -0.31), radius=0.3), contact_normal="body")
     gaps = np.concatenate(problem.comm.allgather(problem.contact.gap))
     assert np.isinf(gaps).any() and np.isfinite(gaps).any()
     with ADMMSolver(problem, penalty=3000.0, rtol=1e-9) as solver:

@@ -117,8 +117,8 @@ def test_obstacle_steps_reuse_the_factorisation_and_match_fresh_problems():
 class _NaNBelowMiddle(Obstacle):
     """A broken obstacle: NaN gap at the nodes with x < 1 (on whichever rank owns them)."""
 
-    def gap(self, x, n):
-        return np.where(x[:, 0] < 1.0, np.nan, 0.1)
+    def signed_distance(self, x):
+        return np.where(x[:, 0] < 1.0, np.nan, 0.1), np.tile([0.0, 1.0], (x.shape[0], 1))
 
 
 def test_bad_obstacle_update_raises_and_keeps_the_previous_one():

@@ -40,7 +40,7 @@ def test_example1_against_algorithm5(h):
 @serial_only
 @pytest.mark.parametrize("level", [0, 1])
 def test_example3_against_algorithm5(level):
-    problem = example3(level=level).problem()
+    problem = example3(level=level).problem(contact_normal="body")
     ev = algorithm5_eigenvalues(problem)
     _compare(estimate_penalty(problem, tol=TIGHT), ev[0], ev[-1], 1e-6)
     loose = estimate_penalty(problem)
@@ -120,7 +120,7 @@ def test_auto_penalty_shares_one_symbolic_factorisation(tol, metric):
     default) adds one small factorisation per layer of its μ_max and one of the
     surface QP per change of the contact set (rank 0), and factorises the body at its
     own r, with the same symbolic analysis."""
-    problem = example3(level=0).problem()
+    problem = example3(level=0).problem(contact_normal="body")
     sym0, num0 = _cholesky_counts()
     with ADMMSolver(problem, penalty_tol=tol, penalty_metric=metric) as solver:
         result = solver.solve()

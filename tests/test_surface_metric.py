@@ -63,7 +63,7 @@ def tilted_block(comm=MPI.COMM_WORLD, angle=0.3, side_z=-0.03):
 
 def test_laplace_beltrami_energy_of_linear_functions():
     """∫_Γ |∇_Γ x|² = |Γ_C| = 2 on the flat bottom face of Example 3 (1 × 2)."""
-    problem = example3(level=0).problem()
+    problem = example3(level=0).problem(contact_normal="body")
     metric = SurfaceMetric(problem)
     try:
         c = problem.contact
@@ -88,7 +88,7 @@ def test_laplace_beltrami_energy_of_linear_functions():
 @pytest.mark.parametrize("scene", [lambda: example3(level=1), tilted_block])
 def test_normal_stiffness_is_nt_l_n(scene):
     """vᵀ (Nᵀ L_Γ N) v = (N v)ᵀ L_Γ (N v) for random v; Dirichlet rows of Nᵀ L_Γ N vanish."""
-    problem = scene().problem()
+    problem = scene().problem(contact_normal="body")
     metric = SurfaceMetric(problem)
     try:
         c = problem.contact
@@ -118,7 +118,7 @@ def test_normal_stiffness_is_nt_l_n(scene):
 @pytest.mark.parametrize("beta", [0.0, 0.05, 1.0])
 def test_projection_solves_the_qp(beta):
     """Steps 2-3 meet the QP's KKT conditions; at β = 0 they are the paper's clamp."""
-    problem = example3(level=1).problem()
+    problem = example3(level=1).problem(contact_normal="body")
     metric = SurfaceMetric(problem)
     projection = metric.projection(beta)
     try:
@@ -165,7 +165,7 @@ def test_projection_solves_the_qp(beta):
 @pytest.mark.parametrize("scene", [lambda: example3(level=1), tilted_block])
 def test_same_solution_as_the_paper_metric(scene):
     """Both metrics have the same fixed point; the tilted block exercises the lifting."""
-    problem = scene().problem()
+    problem = scene().problem(contact_normal="body")
     with ADMMSolver(problem, rtol=1e-10, max_iter=3000) as solver:  # 3D default: surface
         assert solver.settings["penalty_metric"] == "surface"
         surface = solver.solve()
@@ -179,7 +179,7 @@ def test_same_solution_as_the_paper_metric(scene):
 
 def test_default_matches_snes_vi():
     """The 3D default against an active-set Newton method (axis-aligned normals)."""
-    problem = example3(level=1).problem()
+    problem = example3(level=1).problem(contact_normal="body")
     with ADMMSolver(problem, rtol=1e-10) as solver:
         result = solver.solve()
     ref = solve_snes_vi(problem)
@@ -193,7 +193,7 @@ def test_beta_and_r_against_the_dense_pencil(level):
     """μ_max from a layer and r = 1/sqrt(½ λ_max μ_max) against all eigenvalues, densely."""
     import scipy.linalg as sla
 
-    problem = example3(level=level).problem()
+    problem = example3(level=level).problem(contact_normal="body")
     with ADMMSolver(problem, penalty_tol=1e-8) as solver:
         info = solver.surface_penalty
     metric = SurfaceMetric(problem)
@@ -225,7 +225,7 @@ def test_beta_and_r_against_the_dense_pencil(level):
     ],
 )
 def test_surface_metric_bad_combinations(kwargs, match):
-    problem = example3(level=0).problem()
+    problem = example3(level=0).problem(contact_normal="body")
     with pytest.raises(ValueError, match=match):
         ADMMSolver(problem, penalty_metric="surface", **kwargs)
 
@@ -244,7 +244,7 @@ def test_load_step_and_moved_obstacle_reuse_the_surface_metric():
     """A new Dirichlet value and a moved obstacle: same β, r and factors, same answer
     as a problem built afresh (the QP reads the new gap, the lifting the new values)."""
     scene = example3(level=0)
-    problem = scene.problem()
+    problem = scene.problem(contact_normal="body")
     with ADMMSolver(problem, rtol=1e-10) as solver:
         first = solver.solve()
         r = solver.penalty
@@ -255,7 +255,7 @@ def test_load_step_and_moved_obstacle_reuse_the_surface_metric():
         moved = solver.solve(warm_start=pushed)
         assert solver.penalty == r
     fresh = example3(level=0, displacement=0.25)
-    fresh_problem = fresh.problem()
+    fresh_problem = fresh.problem(contact_normal="body")
     with ADMMSolver(fresh_problem, rtol=1e-10) as solver:
         expected = solver.solve()
     assert (
@@ -273,7 +273,7 @@ def test_no_surface_gradient_falls_back_to_the_paper_metric():
     from admm_dolfinx import estimate_penalty
     from admm_dolfinx.surface_penalty import estimate_surface_penalty
 
-    problem = example3(level=0).problem()
+    problem = example3(level=0).problem(contact_normal="body")
     metric = SurfaceMetric(problem)
     try:
         metric._k_max_squared = 0.0

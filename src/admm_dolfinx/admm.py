@@ -102,10 +102,10 @@ PAPER_RTOL = 1e-5
 #: Default tolerance of the KKT / fixed-point-residual test.
 DEFAULT_RTOL = 1e-6
 #: Default ``kkt_tol`` with the relative-change test: that test bounds the changes of
-#: u and p, not the residuals, which it leaves larger (``python -m admm_dolfinx.cli
-#: reproduce`` reports them); a stagnated iteration (an r far too small or large) is
-#: far above it.
-CHANGE_TEST_KKT_TOL = 1e-3
+#: u and p, not the residuals, which it leaves larger where ADMM contracts slowly (a
+#: floating body at r*, a penalty at the edge of the paper's sampling range); a
+#: stagnated iteration (an r orders of magnitude off) is far above it.
+CHANGE_TEST_KKT_TOL = 1e-2
 #: Defaults of the accelerated mode, chosen by ``benchmarks/acceleration.py``.
 DEFAULT_ALPHA = 1.6
 DEFAULT_ANDERSON = 5
@@ -317,7 +317,7 @@ class ADMMSolver:
             (:func:`~admm_dolfinx.kkt.compute_kkt_residuals`), and the solve has
             converged only if they are all ≤ ``kkt_tol``. Default: ``rtol`` with the
             ``"kkt"`` test (which it then confirms); with the ``"change"`` test, whose
-            relative changes do not bound the residuals, ``1e-3``.
+            relative changes do not bound the residuals, ``1e-2``.
 
     Raises:
         ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
@@ -359,6 +359,11 @@ class ADMMSolver:
     ):
         if not isinstance(problem, ContactProblem):
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
+        # what a rebuild needs when the problem's N changes (a moved curved obstacle)
+        self._arguments = {
+            k: v for k, v in locals().items() if k not in ("self", "problem", "__class__")
+        }
+        self._operator_version = problem.operator_version
         if mode == "paper":
             alpha, anderson, stopping, polish = 1.0, 0, "change", False
             rtol = PAPER_RTOL if rtol is None else rtol
@@ -635,6 +640,15 @@ class ADMMSolver:
         if problem.sync_load():  # L's data or the Dirichlet values changed since
             logger.info("ADMM: the load data changed; reassembled the load")
         problem.check_obstacle_unchanged()
+        if problem.operator_version != self._operator_version:
+            # update_obstacle turned the contact directions: N, and with it r*, the
+            # step-1 factorisation and the polisher's data, changed
+            logger.info("ADMM: the contact directions changed; recomputing r and the factors")
+            arguments = dict(self._arguments)
+            if self.penalty_estimate is None and self.surface_penalty is None:
+                arguments["penalty"] = self.penalty
+            self.destroy()
+            self.__init__(problem, **arguments)
         c = problem.contact
         r, alpha = self.penalty, self.alpha
         g = c.gap

@@ -1,12 +1,18 @@
 """Reference solvers for the same discrete contact problem (for tests and benchmarks).
 
-:func:`solve_snes_vi` solves the QP of :class:`~admm_dolfinx.ContactProblem` as a
-variational inequality with PETSc's semismooth active-set Newton method
-(``vinewtonrsls``) and a MUMPS factorisation of the reduced Jacobian. It is exact up
-to round-off once the active set is identified, and entirely independent of the ADMM
-code path. PETSc's VI solvers take *bounds* on the unknowns, so it applies where the
-nodal normals of all contact nodes are axis-aligned (flat contact parallel to a
-coordinate plane); it raises otherwise.
+Both are independent of the ADMM code path and solve the QP of
+:class:`~admm_dolfinx.ContactProblem` (minimise ½uᵀAu − fᵀu subject to N u ≤ g):
+
+* :func:`solve_snes_vi`: a variational inequality with PETSc's semismooth active-set
+  Newton method (``vinewtonrsls``) and a MUMPS factorisation of the reduced Jacobian;
+  exact up to round-off once the active set is found, distributed. PETSc's VI solvers
+  take *bounds* on the unknowns, so it applies where every contact direction (row of
+  N) is along a coordinate axis: any body on a plane parallel to a coordinate plane
+  with the default ``contact_normal="obstacle"`` (curved bodies included), and flat
+  contact faces parallel to it in the paper's model. It raises otherwise.
+* :func:`solve_osqp`: OSQP (an ADMM for general QPs, with its own factorisation and
+  solution polishing) at a tight tolerance on the extracted QP, for any obstacle
+  (a tilted plane, a ball); one process.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from admm_dolfinx.kkt import KKTResiduals, compute_kkt_residuals
 from admm_dolfinx.petsc import prefixed_options, unique_prefix
 from admm_dolfinx.problem import ContactProblem
 
-__all__ = ["BaselineResult", "solve_snes_vi"]
+__all__ = ["BaselineResult", "ExtractedQP", "extract_qp", "solve_osqp", "solve_snes_vi"]
 
 _AXIS_TOL = 1e-12
 
@@ -167,3 +173,129 @@ def solve_snes_vi(
         snes.destroy()
         for vec in (F, lower, upper):
             vec.destroy()
+
+
+@dataclass
+class ExtractedQP:
+    """The contact QP on the free dofs, as SciPy matrices (one process).
+
+    minimise ½ xᵀP x + qᵀx subject to C x ≤ upper, with x the free dofs of u and
+    u = u_D on the Dirichlet dofs; C = M^{½} N (rows scaled by the lumped mass).
+
+    Attributes:
+        P: A on the free dofs (CSC).
+        q: −f on the free dofs.
+        C: M^{½} N on the free dofs (CSC).
+        upper: M^{½} (g − N u_D); +inf where a node can never touch.
+        free: Indices of the free dofs.
+        u_d: The Dirichlet values (zero on free dofs), length n.
+    """
+
+    P: Any
+    q: npt.NDArray[np.float64]
+    C: Any
+    upper: npt.NDArray[np.float64]
+    free: npt.NDArray[np.int64]
+    u_d: npt.NDArray[np.float64]
+
+
+def extract_qp(problem: ContactProblem) -> ExtractedQP:
+    """The problem's QP as SciPy matrices; one process (``COMM_SELF``).
+
+    Raises:
+        ValueError: Under MPI.
+    """
+    import scipy.sparse as sp
+    from dolfinx.fem import petsc as fem_petsc
+
+    if problem.comm.size > 1:
+        raise ValueError("extract_qp gathers nothing: build the problem on COMM_SELF.")
+    c = problem.contact
+    bs = problem.V.dofmap.index_map_bs
+    n = problem.A.getSize()[0]
+    fixed = np.zeros(n, dtype=bool)
+    for bc in problem.bcs:
+        fixed[bc.dof_indices()[0]] = True
+    free = np.flatnonzero(~fixed)
+    indptr, indices, data = problem.A.getValuesCSR()
+    A = sp.csr_matrix((data, indices, indptr), shape=problem.A.getSize())
+    values = problem.create_vector()
+    values.set(0.0)
+    fem_petsc.set_bc(values, problem.bcs)
+    u_d = values.array_r.copy()
+    values.destroy()
+    # f on the free dofs, lifted by the Dirichlet values (as the problem's load is)
+    load = problem.load_vector().array_r.copy()
+    rows = np.repeat(np.arange(c.nodes.size), problem.gdim)
+    cols = (c.nodes[:, None] * bs + np.arange(problem.gdim)[None, :]).ravel()
+    N = sp.csr_matrix((c.normals.ravel(), (rows, cols)), shape=(c.nodes.size, n))
+    finite = np.isfinite(c.gap)
+    upper = np.where(finite, c.gap - N @ u_d, np.inf)
+    scale = np.sqrt(c.mass)
+    C = sp.diags(scale) @ N[:, free]
+    return ExtractedQP(
+        P=A[free][:, free].tocsc(),
+        q=-load[free],
+        C=C.tocsc(),
+        upper=scale * upper,
+        free=free,
+        u_d=u_d,
+    )
+
+
+def solve_osqp(problem: ContactProblem, *, tol: float = 1e-10, max_iter: int = 1_000_000):
+    """Solve the contact QP with OSQP at a tight tolerance, polished; one process.
+
+    Args:
+        problem: A contact problem on ``COMM_SELF`` (any obstacle).
+        tol: OSQP's absolute and relative tolerances.
+        max_iter: OSQP's iteration cap.
+
+    Returns:
+        A :class:`BaselineResult` (λ from the equilibrium residual).
+
+    Raises:
+        RuntimeError: If OSQP does not solve the QP.
+    """
+    import osqp
+    import scipy.sparse as sp
+
+    qp = extract_qp(problem)
+    solver = osqp.OSQP()
+    solver.setup(
+        P=sp.triu(qp.P).tocsc(),
+        q=qp.q,
+        A=qp.C,
+        l=np.full(qp.C.shape[0], -np.inf),
+        u=qp.upper,
+        verbose=False,
+        eps_abs=tol,
+        eps_rel=tol,
+        max_iter=max_iter,
+        polishing=True,
+    )
+    t0 = time.perf_counter()
+    res = solver.solve()
+    elapsed = time.perf_counter() - t0
+    if res.info.status_val not in (1, 2):  # solved, or solved inaccurate
+        raise RuntimeError(f"OSQP did not solve the contact QP: {res.info.status}.")
+    u = fem.Function(problem.V, name="displacement")
+    x = qp.u_d.copy()
+    x[qp.free] = res.x
+    u.x.petsc_vec.array[:] = x
+    u.x.scatter_forward()
+    residual = problem.create_vector()
+    try:
+        problem.A.mult(u.x.petsc_vec, residual)
+        residual.aypx(-1.0, problem.load_vector())
+        lam = problem.multiplier_from_residual(residual)
+    finally:
+        residual.destroy()
+    return BaselineResult(
+        u=u,
+        pressure=problem.pressure_function(lam),
+        multiplier=lam,
+        iterations=int(res.info.iter),
+        kkt=compute_kkt_residuals(problem, u.x.petsc_vec, lam),
+        time=elapsed,
+    )

@@ -51,7 +51,10 @@ def cmd_run(args) -> int:
     if args.json:
         check_output_folder(comm, Path(args.json).resolve().parent)
     scene = _build_scene(args)
-    problem = scene.problem()
+    # the paper's algorithm runs in the paper's model (along the body's normal)
+    problem = scene.problem(
+        contact_normal=args.contact_normal or ("body" if args.mode == "paper" else "obstacle")
+    )
     _say(
         f"{scene.name}: {scene.num_nodes} nodes, {problem.num_contact_nodes} contact nodes, "
         f"{comm.size} process(es)"
@@ -168,6 +171,13 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="norm of the penalty: the paper's r M, or r(M + βL_Γ) on the contact surface "
         "(auto: the surface metric in 3D)",
+    )
+    run.add_argument(
+        "--contact-normal",
+        choices=["obstacle", "body"],
+        default=None,
+        help="measure non-penetration along the obstacle's normal (default) or along the "
+        "body's normal (the paper's model; the default with --mode paper)",
     )
     run.add_argument("--json", help="write a JSON summary to this file")
     run.add_argument(

@@ -1,12 +1,15 @@
-"""Contact geometry on the tagged facets: nodes, nodal normals, lumped mass, gap.
+"""Contact geometry on the tagged facets: nodes, contact directions, lumped mass, gap.
 
 Everything here is parallel-safe: facet integrals are assembled by DOLFINx and
 summed across process boundaries, so a contact facet that spans two ranks yields the
 same nodal normal and mass on both.
 
-Notation (design.md §1): contact node j has the area-weighted, normalised outward
-normal n_j of the body, the lumped mass M_jj = ∫_Γc φ_j ds, and the gap g_j to the
-obstacle along n_j.  With these, (N u)_j = u_j · n_j.
+Notation (design.md §1): contact node j has the lumped mass M_jj = ∫_Γc φ_j ds, the
+contact direction d_j (the row of N: (N u)_j = u_j · d_j) and the gap g_j. With the
+default ``contact_normal="obstacle"``, d_j = −ν_j, ν_j the obstacle's unit normal at
+the point closest to x_j, and g_j the signed distance; with ``"body"`` (the paper's),
+d_j = n_j, the body's area-weighted, normalised outward normal, and g_j the distance
+along it (see :mod:`admm_dolfinx.obstacles`).
 """
 
 from __future__ import annotations
@@ -24,15 +27,17 @@ from petsc4py import PETSc
 
 from admm_dolfinx._logging import warn
 from admm_dolfinx._mpi import collective_call, gather_concat
-from admm_dolfinx.obstacles import Obstacle
+from admm_dolfinx.obstacles import Obstacle, implements
 
 __all__ = [
+    "CONTACT_NORMALS",
     "VERTEX_RULE",
     "ContactSet",
     "build_contact_set",
     "compute_gap",
     "contact_measure",
     "dirichlet_fixed",
+    "evaluate_obstacle",
     "mesh_bounds",
     "read_only",
 ]
@@ -69,16 +74,21 @@ class ContactSet:
     Attributes:
         Q: Scalar P1 space on the body's mesh (the space of p, λ, g and M), collapsed
             from the displacement space so that its dof i is node i of V.
-        normal: Nodal normal field n_h in the displacement space; zero away from the
-            contact nodes. It is what the UFL form of NᵀMN uses.
+        normal: The contact directions as a field in the displacement space; zero away
+            from the contact nodes. It is what the UFL form of NᵀMN uses.
         dofs: Local indices of the owned Q dofs that are contact nodes, shape (m_loc,).
         nodes: The matching local node (block) indices of the displacement space.
-        normals: Unit outward normals n_j, shape (m_loc, gdim).
+        normals: The contact directions, the rows of N: the direction in which node j
+            approaches the obstacle (−ν_j, or the body's n_j in the paper's model),
+            shape (m_loc, gdim).
         free_normals: n_j with its Dirichlet-fixed components zeroed: the rows of Nᵀ
             that act on free dofs.
         mass: Lumped contact mass M_jj, shape (m_loc,).
         gap: Normalised gap g_j, shape (m_loc,); +inf where the node can never touch.
         coordinates: Node coordinates, shape (m_loc, gdim).
+        body_normals: The body's outward unit normals n_j, shape (m_loc, gdim).
+        contact_normal: The model of the rows of N: ``"obstacle"`` (−ν_j) or
+            ``"body"`` (n_j).
         num_global: Total number m of contact nodes over all ranks.
         num_excluded: Nodes on Γ_C (all ranks) whose normal displacement is fixed by a
             Dirichlet condition and which are therefore not contact nodes.
@@ -94,6 +104,8 @@ class ContactSet:
     mass: npt.NDArray[np.float64]
     gap: npt.NDArray[np.float64]
     coordinates: npt.NDArray[np.float64]
+    body_normals: npt.NDArray[np.float64]
+    contact_normal: str
     num_global: int
     num_excluded: int
     q_to_node: npt.NDArray[np.int64]
@@ -170,6 +182,10 @@ def _assemble_over_contact(form: ufl.Form, V: fem.FunctionSpace) -> npt.NDArray[
     return values
 
 
+#: ``contact_normal`` values: along the obstacle's normal (default) or the body's.
+CONTACT_NORMALS = ("obstacle", "body")
+
+
 def build_contact_set(
     V: fem.FunctionSpace,
     facet_tags: mesh.MeshTags,
@@ -177,6 +193,7 @@ def build_contact_set(
     bcs: Sequence[fem.DirichletBC],
     obstacle: Obstacle,
     length_scale: float,
+    contact_normal: str = "obstacle",
 ) -> ContactSet:
     """Find the contact nodes and compute their normals, mass and gap; collective.
 
@@ -188,13 +205,16 @@ def build_contact_set(
             not a contact node.
         obstacle: The rigid obstacle.
         length_scale: The body's size (see :func:`compute_gap`).
+        contact_normal: Along which direction non-penetration is measured:
+            ``"obstacle"`` (−ν_j, the obstacle's normal at the closest point) or
+            ``"body"`` (the body's nodal normal n_j, the paper's model).
 
     Returns:
         The contact set.
 
     Raises:
-        ValueError: If every node of Γ_C has its normal displacement fixed, or the gap
-            is NaN or -inf at a contact node.
+        ValueError: If every node of Γ_C has its normal displacement fixed, or the
+            obstacle's answer is unusable (see :func:`compute_gap`).
     """
     msh = V.mesh
     gdim = msh.geometry.dim
@@ -208,13 +228,7 @@ def build_contact_set(
     on_contact = length > 0.0
     normals_all = np.zeros_like(raw)
     normals_all[on_contact] = raw[on_contact] / length[on_contact, None]
-
     fixed = dirichlet_fixed(V, bcs)
-    free_all = np.where(fixed, 0.0, normals_all)
-    active = on_contact & (np.linalg.norm(free_all, axis=1) > _FIXED_NORMAL_TOL)
-
-    normal = fem.Function(V, name="contact_normal")
-    normal.x.array[:] = np.where(active[:, None], normals_all, 0.0).reshape(-1)
 
     Q, q_to_v = V.sub(0).collapse()
     q_to_node = np.asarray(q_to_v).reshape(-1) // bs
@@ -226,13 +240,18 @@ def build_contact_set(
     owned_nodes = q_to_node[:n_owned_q]
     if np.any(owned_nodes >= n_owned_nodes):  # pragma: no cover - DOLFINx invariant
         raise RuntimeError("internal: collapsed scalar space does not share V's ownership")
-    dofs = np.flatnonzero(active[owned_nodes] & (mass_all[:n_owned_q] > 0.0)).astype(np.int32)
-    nodes = owned_nodes[dofs].astype(np.int32)
-
-    coordinates = Q.tabulate_dof_coordinates()[dofs, :gdim]
-    normals = normals_all[nodes, :gdim]
-
+    # candidates: owned nodes of Γ_C; their contact directions (rows of N) and gaps
+    candidates = np.flatnonzero(on_contact[owned_nodes] & (mass_all[:n_owned_q] > 0.0))
+    candidate_nodes = owned_nodes[candidates]
+    coordinates = Q.tabulate_dof_coordinates()[candidates, :gdim]
+    body_normals = normals_all[candidate_nodes, :gdim]
     comm = msh.comm
+    gap, directions = evaluate_obstacle(obstacle, coordinates, body_normals, comm, contact_normal)
+    free = np.where(fixed[candidate_nodes, :gdim], 0.0, directions)
+    keep = np.linalg.norm(free, axis=1) > _FIXED_NORMAL_TOL
+    dofs = candidates[keep].astype(np.int32)
+    nodes = candidate_nodes[keep].astype(np.int32)
+
     n_owned_on_contact = int(np.count_nonzero(on_contact[:n_owned_nodes]))
     n_global, n_on_contact = comm.allreduce(np.array([dofs.size, n_owned_on_contact]), op=MPI.SUM)
     if n_global == 0:
@@ -242,18 +261,26 @@ def build_contact_set(
             "into contact. Remove the Dirichlet condition from the contact boundary or "
             "choose another contact marker."
         )
-    gap = compute_gap(obstacle, coordinates, normals, comm, length_scale)
+    gap, directions = gap[keep], directions[keep]
+    _check_gap_values(gap, coordinates[keep], comm, length_scale, f"{obstacle!r}", contact_normal)
+
+    normal = fem.Function(V, name="contact_normal")
+    normal.x.array[:] = 0.0
+    normal.x.array.reshape(-1, bs)[nodes, :gdim] = directions
+    normal.x.scatter_forward()
 
     return ContactSet(
         Q=Q,
         normal=normal,
         dofs=dofs,
         nodes=nodes,
-        normals=normals,
-        free_normals=free_all[nodes, :gdim],
+        normals=directions,
+        free_normals=free[keep],
         mass=mass_all[dofs].copy(),
         gap=gap,
-        coordinates=coordinates,
+        coordinates=coordinates[keep],
+        body_normals=body_normals[keep],
+        contact_normal=contact_normal,
         num_global=int(n_global),
         num_excluded=int(n_on_contact - n_global),
         q_to_node=q_to_node,
@@ -267,67 +294,142 @@ def read_only(array: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return copy
 
 
-def compute_gap(
-    obstacle: Obstacle,
-    coordinates: npt.NDArray[np.float64],
-    normals: npt.NDArray[np.float64],
-    comm: MPI.Comm,
-    length_scale: float,
-) -> npt.NDArray[np.float64]:
-    """The gap g_j from each contact node along its normal to the obstacle; collective.
+def _guarded(comm: MPI.Comm, fn, name: str):
+    """User code ``fn()`` on every rank, with a clear message if it writes its inputs."""
 
-    ``obstacle.gap`` is user code: it gets read-only copies of the coordinates and
-    normals, and if it raises on one rank, every rank raises.
-
-    Args:
-        obstacle: The rigid obstacle.
-        coordinates: Owned contact node coordinates, shape (m_loc, gdim).
-        normals: Their unit outward normals, shape (m_loc, gdim).
-        comm: The mesh's communicator.
-        length_scale: The body's size (the diagonal of its bounding box); a node that
-            starts deeper inside the obstacle than this is an input error.
-
-    Returns:
-        g, shape (m_loc,): finite, or +inf where a node can never touch the obstacle.
-
-    Raises:
-        ValueError: On every rank, if ``obstacle.gap`` returns the wrong shape, a NaN
-            or −inf value, or a penetration deeper than the body's size at some node.
-    """
-    name = type(obstacle).__name__
-    x, n = read_only(coordinates), read_only(normals)
-
-    def user_gap():
+    def call():
         try:
-            return obstacle.gap(x, n)
+            return fn()
         except ValueError as error:
             if "read-only" in str(error):
                 raise ValueError(
-                    f"{name}.gap tried to write into its inputs x or n, which are "
-                    "read-only (they are the problem's node coordinates and normals): "
-                    "compute the gap into a new array (e.g. n = n.copy() first)."
+                    f"{name} tried to write into its inputs, which are read-only (they are "
+                    "the problem's node coordinates and normals): compute into new arrays "
+                    "(e.g. n = n.copy() first)."
                 ) from error
             raise
 
-    raw = collective_call(comm, user_gap, f"{name}.gap")
+    return collective_call(comm, call, name)
+
+
+def evaluate_obstacle(
+    obstacle: Obstacle,
+    coordinates: npt.NDArray[np.float64],
+    body_normals: npt.NDArray[np.float64],
+    comm: MPI.Comm,
+    contact_normal: str,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The gap and the contact direction (a row of N) at each node; collective.
+
+    User code: it gets read-only copies, and if it raises on one rank every rank
+    raises. With ``"obstacle"`` the direction is −ν (the obstacle's normal at the
+    closest point, turned towards the obstacle) and the gap the signed distance; with
+    ``"body"`` the body's normal and the distance along it. A node that can never touch
+    (gap +inf) keeps the body's normal (it constrains nothing).
+
+    Raises:
+        ValueError: On every rank, for an obstacle that does not implement the model's
+            method, or an answer of the wrong shape or with bad normals.
+    """
+    name = type(obstacle).__name__
+    k, gdim = coordinates.shape
+    x, n = read_only(coordinates), read_only(body_normals)
+    if contact_normal == "obstacle":
+        if not implements(obstacle, "signed_distance"):
+            raise ValueError(
+                f"{name} implements only gap(x, n), the distance along the body's "
+                "normals: build the problem with contact_normal='body' (the paper's "
+                "model), or implement signed_distance(x) -> (g, nu) for the default model "
+                "along the obstacle's normal."
+            )
+        answer = _guarded(comm, lambda: obstacle.signed_distance(x), f"{name}.signed_distance")
+        try:
+            gap, nu = (np.asarray(a, dtype=np.float64) for a in answer)
+        except (TypeError, ValueError):
+            gap, nu = np.full(0, np.nan), np.zeros((0, gdim))
+        shapes = gap.shape in ((k,), (k, 1)) and nu.shape == (k, gdim)
+        if not comm.allreduce(shapes, op=MPI.LAND):
+            raise ValueError(
+                f"{name}.signed_distance must return (g, nu) with g of shape (k,) and nu of "
+                "shape (k, gdim) for x of shape (k, gdim), on every process."
+            )
+        gap = gap.reshape(-1).copy()
+        finite = np.isfinite(gap)
+        length = np.linalg.norm(nu, axis=1)
+        bad = finite & ~(np.isfinite(length) & (length > 0.0))
+        if comm.allreduce(int(np.count_nonzero(bad)), op=MPI.SUM):
+            raise ValueError(
+                f"{name}.signed_distance returned a zero or non-finite normal at a node with "
+                "a finite distance; nu must be the obstacle's unit normal there."
+            )
+        with np.errstate(invalid="ignore", divide="ignore"):
+            directions = np.where(finite[:, None], -nu / length[:, None], n)
+        return gap, directions
+    if contact_normal != "body":
+        raise ValueError(
+            f"contact_normal must be one of {CONTACT_NORMALS}, got {contact_normal!r}."
+        )
+    if not implements(obstacle, "gap"):
+        raise ValueError(
+            f"{name} implements only signed_distance(x), along the obstacle's normal: use "
+            "contact_normal='obstacle' (the default), or implement gap(x, n) for the "
+            "paper's model along the body's normals."
+        )
+    raw = _guarded(comm, lambda: obstacle.gap(x, n), f"{name}.gap")
     try:
         gap = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):
         gap = np.full(0, np.nan)
-    shape_ok = comm.allreduce(gap.shape in ((x.shape[0],), (x.shape[0], 1)), op=MPI.LAND)
-    if not shape_ok:
+    if not comm.allreduce(gap.shape in ((k,), (k, 1)), op=MPI.LAND):
         raise ValueError(
             f"{name}.gap returned an array of the wrong shape or type on some process; it "
             "must return one float per contact node, shape (k,) for x and n of shape "
             "(k, gdim)."
         )
-    gap = gap.reshape(-1).copy()
-    _check_gap_values(gap, coordinates, comm, length_scale, f"{obstacle!r}")
-    return gap
+    return gap.reshape(-1).copy(), np.array(body_normals, dtype=np.float64, copy=True)
 
 
-def _check_gap_values(gap, coordinates, comm, length_scale, what) -> None:
+def compute_gap(
+    obstacle: Obstacle,
+    contact: ContactSet,
+    comm: MPI.Comm,
+    length_scale: float,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The gap and contact directions of the contact set's nodes for an obstacle.
+
+    Args:
+        obstacle: The rigid obstacle.
+        contact: The contact set (its nodes, coordinates, body normals and model).
+        comm: The mesh's communicator.
+        length_scale: The body's size (the diagonal of its bounding box); a node that
+            starts deeper inside the obstacle than this is an input error.
+
+    Returns:
+        (g, directions), shapes (m_loc,) and (m_loc, gdim).
+
+    Raises:
+        ValueError: On every rank, if the obstacle's answer has the wrong shape, a NaN
+            or −inf gap, or a penetration deeper than the body's size.
+    """
+    gap, directions = evaluate_obstacle(
+        obstacle, contact.coordinates, contact.body_normals, comm, contact.contact_normal
+    )
+    _check_gap_values(
+        gap, contact.coordinates, comm, length_scale, f"{obstacle!r}", contact.contact_normal
+    )
+    return gap, directions
+
+
+def _check_gap_values(gap, coordinates, comm, length_scale, what, contact_normal) -> None:
     """Refuse NaN, −inf and absurd penetrations; warn when no or every node touches."""
+    behind = gap == -np.inf
+    if contact_normal == "body" and comm.allreduce(int(np.count_nonzero(behind)), op=MPI.SUM):
+        raise ValueError(
+            f"Some contact nodes start inside {what} with their body normal pointing away "
+            "from it (the gap along the normal is -inf): the paper's model, "
+            "contact_normal='body', cannot push them out along their normals. Use "
+            "contact_normal='obstacle' (the default), or check the obstacle's position."
+        )
     bad = ~(np.isfinite(gap) | (gap == np.inf))
     deep = np.isfinite(gap) & (gap < -length_scale)
     for mask, problem in (

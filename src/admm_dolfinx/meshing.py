@@ -27,6 +27,7 @@ __all__ = [
     "check_level",
     "global_bounds",
     "gmsh_session",
+    "lower_ball",
     "quarter_disc",
     "rectangle",
     "structured_rectangle",
@@ -373,3 +374,98 @@ def box(
             gmsh.model.mesh.refine()
 
     return build_on_root(comm, "box", 3, build)
+
+
+def lower_ball(
+    comm: MPI.Comm,
+    gdim: int,
+    radius: float,
+    h: float,
+    h_contact: float,
+    tags: dict[str, int],
+    *,
+    refine_radius: float,
+    quarter: bool = False,
+) -> MeshData:
+    """The lower half of a disc (2D) or a ball (3D) of radius R centred at (0, …, R).
+
+    The body touches the plane x_gdim = 0 at the origin. Boundary parts: ``"top"`` (the
+    flat cut through the centre, x_gdim = R) and ``"surface"`` (the curved part); with
+    ``quarter`` (3D: x ≥ 0, y ≥ 0; 2D: x ≥ 0) also the symmetry planes ``"sym_x"``
+    (x = 0) and, in 3D, ``"sym_y"`` (y = 0).
+
+    Args:
+        comm: Communicator.
+        gdim: 2 or 3.
+        radius: R.
+        h: Element size away from the contact zone.
+        h_contact: Element size within ``refine_radius`` of the origin.
+        tags: Tags of the parts named above.
+        refine_radius: Where ``h_contact`` applies, growing to ``h`` at three times it.
+        quarter: Keep the quarter (3D) or half (2D) that the symmetry planes cut off.
+
+    Returns:
+        Mesh data.
+    """
+    check_lengths(radius=radius, h=h, h_contact=h_contact, refine_radius=refine_radius)
+    if gdim not in (2, 3):
+        raise ValueError(f"gdim must be 2 or 3, got {gdim!r}.")
+    R = radius
+    low = 0.0 if quarter else -R
+
+    def build(gmsh):
+        occ = gmsh.model.occ
+        if gdim == 2:
+            ball = occ.addDisk(0.0, R, 0.0, R, R)
+            cut = occ.addRectangle(low, 0.0, 0.0, R - low, R)
+        else:
+            ball = occ.addSphere(0.0, 0.0, R, R)
+            cut = occ.addBox(low, low, 0.0, R - low, R - low, R)
+        out, _ = occ.intersect([(gdim, ball)], [(gdim, cut)])
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(gdim, [e for _, e in out], 1)
+        eps = 1e-8 * R
+        rules = {tags["top"]: lambda c: abs(c[gdim - 1] - R) < eps}
+        if quarter:
+            rules[tags["sym_x"]] = lambda c: abs(c[0]) < eps
+            if gdim == 3:
+                rules[tags["sym_y"]] = lambda c: abs(c[1]) < eps
+        rules[tags["surface"]] = lambda c: True
+        _tag_curves_by_center(gmsh, gdim - 1, rules)
+        lowest = [
+            tag
+            for _, tag in gmsh.model.getEntities(0)
+            if np.linalg.norm(gmsh.model.getValue(0, tag, [])) < 1e-8 * R
+        ]
+        field = gmsh.model.mesh.field
+        dist = field.add("Distance")
+        if lowest:
+            field.setNumbers(dist, "PointsList", lowest)
+        else:  # the lowest point is inside a face: measure from the whole curved part
+            surface = gmsh.model.getEntitiesForPhysicalGroup(gdim - 1, tags["surface"])
+            field.setNumbers(dist, "SurfacesList" if gdim == 3 else "CurvesList", list(surface))
+        thr = field.add("Threshold")
+        field.setNumber(thr, "InField", dist)
+        field.setNumber(thr, "DistMin", refine_radius)
+        field.setNumber(thr, "DistMax", 3.0 * refine_radius + 4.0 * h)
+        field.setNumber(thr, "SizeMin", h_contact)
+        field.setNumber(thr, "SizeMax", h)
+        if not lowest:
+            # distance to the curved part is zero on all of it: refine by the height
+            f = field.add("MathEval")
+            axis = "y" if gdim == 2 else "z"
+            field.setString(
+                f,
+                "F",
+                f"{h_contact} + ({h} - {h_contact}) * Min(1, Max(0, ({axis} - "
+                f"{0.5 * refine_radius**2 / R}) / ({3.0 * refine_radius}) ))",
+            )
+            field.setAsBackgroundMesh(f)
+        else:
+            field.setAsBackgroundMesh(thr)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.model.mesh.generate(gdim)
+
+    return build_on_root(comm, "lower_ball", gdim, build)

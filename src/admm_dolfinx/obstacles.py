@@ -1,12 +1,21 @@
-"""Analytic rigid obstacles and the normalised gap.
+"""Analytic rigid obstacles: the signed distance and normal, or the gap along a ray.
 
-The gap of contact node j is the distance g_j ≥ 0 the node may travel along its
-outward unit normal n_j before it meets the obstacle, so the constraint reads
-u_j · n_j ≤ g_j.  A node that already penetrates the obstacle has g_j < 0; a node
-whose normal ray never meets the obstacle has g_j = +inf (it can never touch).
+Two models of the linearised non-penetration condition at contact node j
+(:class:`~admm_dolfinx.ContactProblem`'s ``contact_normal``):
 
-A user-defined obstacle is a small subclass of :class:`Obstacle` implementing
-:meth:`Obstacle.gap`.
+* ``"obstacle"`` (default): along the **obstacle's** unit normal ν_j at the point of
+  the obstacle closest to x_j, with g_j the signed distance:
+  −u_j · ν_j ≤ g_j. This is what a rigid-master contact code imposes, and it keeps a
+  curved body out of a plane however wide the contact zone.
+* ``"body"`` (the paper's): along the body's outward nodal normal n_j, with g_j the
+  distance from x_j to the obstacle along the ray x_j + t n_j: u_j · n_j ≤ g_j. Exact
+  only where the body's surface is parallel to the obstacle.
+
+An obstacle implements :meth:`Obstacle.signed_distance` for the first and
+:meth:`Obstacle.gap` for the second; :class:`Plane` and :class:`Ball` implement both,
+exactly. Sign conventions: a positive gap is room to move, a negative one an initial
+penetration, +inf a node that can never touch. The inputs of both methods are
+read-only arrays; they must return new arrays.
 """
 
 from __future__ import annotations
@@ -16,29 +25,53 @@ import abc
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Ball", "Obstacle", "Plane", "obstacle_state"]
+__all__ = ["Ball", "Obstacle", "Plane", "implements", "obstacle_state"]
 
 
-class Obstacle(abc.ABC):
+class Obstacle(abc.ABC):  # noqa: B024 - an interface of two optional methods
     """A rigid obstacle described analytically.
 
-    Subclasses implement :meth:`gap`; everything else (nodal normals, contact nodes,
-    parallel layout) is done by :class:`admm_dolfinx.ContactProblem`.
+    Implement :meth:`signed_distance` (the default model, along the obstacle's
+    normal), :meth:`gap` (the paper's model, along the body's normal), or both.
+    Everything else (nodal normals, contact nodes, parallel layout) is done by
+    :class:`admm_dolfinx.ContactProblem`.
+
+    A user who can only give the distance along a ray (the gap of the paper's model)
+    implements :meth:`gap` alone and builds the problem with ``contact_normal="body"``.
     """
 
-    @abc.abstractmethod
-    def gap(self, x: npt.NDArray[np.floating], n: npt.NDArray[np.floating]) -> npt.NDArray:
-        """Return the normalised gap of points ``x`` along directions ``n``.
+    def signed_distance(
+        self, x: npt.NDArray[np.floating]
+    ) -> tuple[npt.NDArray[np.floating], npt.NDArray[np.floating]]:
+        """The signed distance of points to the obstacle, and its normal there.
 
         Args:
-            x: Node coordinates, shape ``(k, gdim)``.
-            n: Outward unit normals of the body at those nodes, shape ``(k, gdim)``.
+            x: Node coordinates, shape ``(k, gdim)``, read-only.
+
+        Returns:
+            ``(g, nu)``: g of shape ``(k,)``, the distance from each point to the
+            closest point of the obstacle's surface, positive outside the obstacle,
+            negative inside (initial penetration), ``+inf`` where the point can never
+            touch it; nu of shape ``(k, gdim)``, the obstacle's outward unit normal at
+            that closest point (from the obstacle towards the point; ignored where g
+            is +inf).
+        """
+        raise NotImplementedError
+
+    def gap(self, x: npt.NDArray[np.floating], n: npt.NDArray[np.floating]) -> npt.NDArray:
+        """The gap of points along directions (the paper's model).
+
+        Args:
+            x: Node coordinates, shape ``(k, gdim)``, read-only.
+            n: Outward unit normals of the body at those nodes, shape ``(k, gdim)``,
+                read-only.
 
         Returns:
             Array of shape ``(k,)``: the signed distance along ``n`` from each point to
             the obstacle surface; negative for a penetrating point, ``+inf`` where the
             ray never meets the obstacle.
         """
+        raise NotImplementedError
 
     def check_dimension(self, gdim: int) -> None:  # noqa: B027 - optional hook
         """Raise if the obstacle cannot be used in ``gdim`` dimensions (default: no check).
@@ -46,6 +79,11 @@ class Obstacle(abc.ABC):
         Args:
             gdim: Geometric dimension of the mesh.
         """
+
+
+def implements(obstacle: Obstacle, method: str) -> bool:
+    """Whether ``obstacle``'s class overrides :class:`Obstacle`'s ``method``."""
+    return getattr(type(obstacle), method) is not getattr(Obstacle, method)
 
 
 def _as_vector(value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
@@ -92,14 +130,26 @@ class Plane(Obstacle):
                 f"give point and normal with {gdim} components."
             )
 
-    def gap(self, x, n):  # noqa: D102
+    def signed_distance(self, x):  # noqa: D102
+        x = np.asarray(x, dtype=np.float64)
+        height = (x - self.point) @ self.normal  # > 0 on the body's side
+        return height, np.tile(self.normal, (x.shape[0], 1))
+
+    def gap(self, x, n):
+        """The distance along ``n`` to the plane (see :meth:`Obstacle.gap`).
+
+        A point above the plane whose ray points away never meets it: +inf. A point
+        below the plane (inside the obstacle) whose normal points away from the plane
+        cannot be pushed out along its normal at all: −inf, which the problem refuses
+        with an explanation (the default ``contact_normal="obstacle"`` handles it).
+        """
         x = np.asarray(x, dtype=np.float64)
         n = np.asarray(n, dtype=np.float64)
         height = (x - self.point) @ self.normal  # > 0 above the plane
         approach = -(n @ self.normal)  # > 0 when moving along n goes towards the plane
         with np.errstate(divide="ignore", invalid="ignore"):
-            g = np.where(approach > 0.0, height / np.where(approach > 0, approach, 1.0), np.inf)
-        return g
+            along = height / np.where(approach > 0, approach, 1.0)
+        return np.where(approach > 0.0, along, np.where(height < 0.0, -np.inf, np.inf))
 
     def __repr__(self) -> str:
         return f"Plane(point={self.point.tolist()}, normal={self.normal.tolist()})"
@@ -129,6 +179,16 @@ class Ball(Obstacle):
                 f"Ball is defined in {self.center.size}D but the mesh is {gdim}D; "
                 f"give a center with {gdim} components."
             )
+
+    def signed_distance(self, x):  # noqa: D102
+        x = np.asarray(x, dtype=np.float64)
+        d = x - self.center
+        length = np.linalg.norm(d, axis=1)
+        up = np.zeros(x.shape[1])
+        up[-1] = 1.0  # the centre itself: any direction is closest; take "up"
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nu = np.where(length[:, None] > 0.0, d / length[:, None], up)
+        return length - self.radius, nu
 
     def gap(self, x, n):  # noqa: D102
         x = np.asarray(x, dtype=np.float64)

@@ -12,9 +12,10 @@ into the data of the quadratic programme (design.md §1)
     minimise ½ uᵀA u − fᵀu   subject to   N u ≤ g,
 
 namely the stiffness ``A``, the normal mass ``K = NᵀMN`` (a UFL form with the vertex
-rule and the nodal normal field), the lifted load, the lumped mass ``M`` and the gap
-``g``.  ``N`` itself is node-local (``(N u)_j = u_j · n_j``) and is applied directly to
-owned nodal values; it never needs a matrix.
+rule and the field of contact directions), the lifted load, the lumped mass ``M`` and
+the gap ``g``.  ``N`` itself is node-local (``(N u)_j = u_j · d_j``, d_j the contact
+direction of node j: see :mod:`admm_dolfinx.contact`) and is applied directly to owned
+nodal values; it never needs a matrix.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from petsc4py import PETSc
 
 from admm_dolfinx.checks import check_dirichlet_conditions, check_finite, check_stiffness
 from admm_dolfinx.contact import (
+    CONTACT_NORMALS,
     ContactSet,
     build_contact_set,
     check_contact_facets,
@@ -142,6 +144,13 @@ class ContactProblem(PetscOwner):
         facet_tags: Facet tags of V's mesh.
         contact_marker: Tag value of the candidate contact facets Γ_C.
         obstacle: The rigid obstacle.
+        contact_normal: Along which direction non-penetration is measured at each
+            contact node: ``"obstacle"`` (default) the obstacle's normal at the node's
+            closest point, with the signed distance as the gap, as a rigid-master
+            contact code does (a curved body stays out of a plane however wide the
+            contact zone); ``"body"`` the body's own nodal normal, with the distance
+            along it (the paper's model, exact only where the body's surface is
+            parallel to the obstacle; :mod:`admm_dolfinx.reproduce` uses it).
         form_compiler_options: Passed to :func:`dolfinx.fem.form`.
         jit_options: Passed to :func:`dolfinx.fem.form`.
 
@@ -170,10 +179,17 @@ class ContactProblem(PetscOwner):
         contact_marker: int,
         obstacle: Obstacle,
         *,
+        contact_normal: str = "obstacle",
         form_compiler_options: dict | None = None,
         jit_options: dict | None = None,
     ):
         t_start = time.perf_counter()
+        if contact_normal not in CONTACT_NORMALS:
+            raise ValueError(
+                f"contact_normal must be 'obstacle' (non-penetration measured along the "
+                "obstacle's normal at each node's closest point, the default) or 'body' "
+                f"(along the body's own normal, the paper's model); got {contact_normal!r}."
+            )
         V = _check_forms(a, L)
         msh = V.mesh
         _check_obstacle(obstacle, msh.geometry.dim)
@@ -214,8 +230,13 @@ class ContactProblem(PetscOwner):
         #: The body's size: the diagonal of its bounding box.
         self.length_scale = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
         self.contact: ContactSet = build_contact_set(
-            V, facet_tags, self.contact_marker, bcs, obstacle, self.length_scale
+            V, facet_tags, self.contact_marker, bcs, obstacle, self.length_scale, contact_normal
         )
+        #: Along which normal non-penetration is measured (``"obstacle"`` or ``"body"``).
+        self.contact_normal = contact_normal
+        #: Counts the changes of N (a moved curved obstacle turns the obstacle's
+        #: normals): a solver built on an older N rebuilds its penalty and factors.
+        self.operator_version = 0
         self.A = self.K = self._load = self._lift_k = None
         try:
             self._assemble_operators(a, L, form_compiler_options, jit_options)
@@ -350,8 +371,13 @@ class ContactProblem(PetscOwner):
     def update_obstacle(self, obstacle: Obstacle) -> None:
         """Replace the rigid obstacle, e.g. move it for the next step; collective.
 
-        The gap g is recomputed at the same contact nodes along the same normals. As
-        with :meth:`update_load`, A, NᵀMN, r* and the factorisation stay valid.
+        The gap g is recomputed at the same contact nodes. Where the contact directions
+        (the rows of N) stay the same (the paper's body normals; a plane moved without
+        turning), A, NᵀMN, r* and the factorisation stay valid, as with
+        :meth:`update_load`. Where they turn (a moved curved obstacle with the default
+        ``contact_normal="obstacle"``), NᵀMN is reassembled and
+        :attr:`operator_version` goes up: a solver of this problem then recomputes its
+        penalty and factorisation at its next solve.
 
         Args:
             obstacle: The new obstacle.
@@ -359,11 +385,38 @@ class ContactProblem(PetscOwner):
         Raises:
             TypeError: If ``obstacle`` is not an :class:`~admm_dolfinx.obstacles.Obstacle`.
             ValueError: If it has the wrong dimension or its gap is NaN or −inf at some
-                contact node; the problem then keeps its previous obstacle.
+                contact node, or a new contact direction is fixed by the Dirichlet
+                conditions; the problem then keeps its previous obstacle.
         """
         _check_obstacle(obstacle, self.gdim)
         c = self.contact
-        c.gap = compute_gap(obstacle, c.coordinates, c.normals, self.comm, self.length_scale)
+        gap, directions = compute_gap(obstacle, c, self.comm, self.length_scale)
+        turned = not np.allclose(directions, c.normals, rtol=0.0, atol=1e-13)
+        turned = bool(self.comm.allreduce(turned, op=MPI.LOR))
+        if turned:
+            fixed = dirichlet_fixed(self.V, self.bcs)[c.nodes, : self.gdim]
+            free = np.where(fixed, 0.0, directions)
+            lost = np.linalg.norm(free, axis=1) <= 1e-8
+            if self.comm.allreduce(int(np.count_nonzero(lost)), op=MPI.SUM):
+                raise ValueError(
+                    "With the new obstacle some contact directions are fixed by the "
+                    "Dirichlet conditions: the set of contact nodes changes. Build a new "
+                    "ContactProblem for it."
+                )
+            c.normals, c.free_normals = directions, free
+            bs = self.V.dofmap.index_map_bs
+            c.normal.x.array[:] = 0.0
+            c.normal.x.array.reshape(-1, bs)[c.nodes, : self.gdim] = directions
+            c.normal.x.scatter_forward()
+            self.K.zeroEntries()
+            fem_petsc.assemble_matrix(self.K, self._k, bcs=self.bcs, diag=0.0)
+            self.K.assemble()
+            self._assemble_load()  # the lifting of K by the Dirichlet values
+            self.rigid_motions = analyse_rigid_motions(
+                self.A, self.V, c.nodes, c.normals, c.mass, self.stiffness_scale, self.bounds
+            )
+            self.operator_version += 1
+        c.gap = gap
         self.obstacle = obstacle
         self._obstacle_state = obstacle_state(obstacle)
 

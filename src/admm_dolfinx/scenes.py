@@ -20,6 +20,7 @@ from admm_dolfinx.meshing import (
     box,
     check_lengths,
     check_level,
+    lower_ball,
     quarter_disc,
     rectangle,
     structured_rectangle,
@@ -35,6 +36,9 @@ __all__ = [
     "example3",
     "hertz",
     "hertz_solution",
+    "hertz_sphere",
+    "hertz_sphere_solution",
+    "pressed_ball",
     "pressed_block",
 ]
 
@@ -422,5 +426,188 @@ def hertz(
     )
 
 
+def pressed_ball(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    gdim: int = 2,
+    radius: float = 1.0,
+    gap: float = 0.02,
+    push: float = 0.08,
+    h: float | None = None,
+    h_contact: float | None = None,
+    E: float = 1.0,
+    nu: float = 0.3,
+) -> Scene:
+    """A half-disc (2D) or half-ball (3D) pressed far onto a rigid plane.
+
+    The lower half of a disc or ball of radius R, centred at height R + ``gap`` above
+    the plane x_gdim = 0; its flat top (through the centre) is moved down by ``push``
+    (4× the gap by default), so that the contact zone spans a wide angle: with the
+    defaults its half-width exceeds R/3. The case that separates the two contact models
+    (:mod:`admm_dolfinx.obstacles`): along the body's normal, nodes far from the lowest
+    point sink below the plane.
+
+    Args:
+        comm: Communicator.
+        gdim: 2 or 3.
+        radius: R.
+        gap: Initial distance of the lowest point from the plane.
+        push: Downward displacement of the flat top.
+        h: Element size away from the contact zone (default R/8 in 2D, R/4 in 3D).
+        h_contact: Element size in the contact zone (default R/40 in 2D, R/10 in 3D).
+        E: Young's modulus.
+        nu: Poisson ratio.
+
+    Returns:
+        The scene; ``info`` holds the expected half-width of the flattened zone.
+    """
+    check_lengths(radius=radius, push=push)
+    h = h or radius / (8 if gdim == 2 else 4)
+    h_contact = h_contact or radius / (40 if gdim == 2 else 10)
+    tags = {"top": 1, "surface": 2}
+    data = lower_ball(comm, gdim, radius, h, h_contact, tags, refine_radius=0.7 * radius)
+    msh, facet_tags = data.mesh, data.facet_tags
+    msh.geometry.x[:, gdim - 1] += gap
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (gdim,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    down = np.zeros(gdim)
+    down[-1] = -push
+    top = fem.locate_dofs_topological(V, gdim - 1, facet_tags.find(tags["top"]))
+    normal = np.zeros(gdim)
+    normal[-1] = 1.0
+    overlap = push - gap
+    return Scene(
+        name="pressed_ball",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(fem.Constant(msh, np.zeros(gdim)), v) * ufl.dx,
+        bcs=[fem.dirichletbc(down, top, V)],
+        contact_marker=tags["surface"],
+        obstacle=Plane(point=np.zeros(gdim), normal=normal),
+        h=h_contact,
+        info={
+            "E": E,
+            "nu": nu,
+            "radius": radius,
+            "gap": gap,
+            "push": push,
+            "overlap half-width": float(np.sqrt(2.0 * radius * overlap - overlap**2)),
+        },
+    )
+
+
+def hertz_sphere_solution(load: float, radius: float, E: float, nu: float) -> tuple[float, float]:
+    """Hertz's solution for a sphere on a rigid plane: (a, p0) for a total force F.
+
+    a = (3 F R / (4 E*))^{1/3}, p0 = 3 F / (2 π a²), E* = E / (1 − ν²); the pressure is
+    p(r) = p0 sqrt(1 − r²/a²) on r ≤ a.
+    """
+    e_star = E / (1.0 - nu**2)
+    a = float((3.0 * load * radius / (4.0 * e_star)) ** (1.0 / 3.0))
+    return a, 3.0 * load / (2.0 * np.pi * a**2)
+
+
+def hertz_sphere(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 1000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    half_width: float = 0.4,
+    h_far: float = 0.2,
+    refine: float = 1.5,
+) -> Scene:
+    """A sphere on a rigid plane under a small load (3D Hertz), by symmetry a quarter.
+
+    The lower quarter-hemisphere (x ≥ 0, y ≥ 0) of a ball of radius R resting on the
+    plane z = 0, with u_x = 0 on x = 0 and u_y = 0 on y = 0 and a uniform downward
+    traction on its flat top chosen so that Hertz's contact radius is ``half_width``
+    (R/20 by default: small strains, and a body large against the contact zone). Nothing holds the vertical motion but the contact (a
+    floating body, like the paper's cylinder). The mesh is refined around the contact
+    point: the element size there is a/3 / 2^level.
+
+    Args:
+        comm: Communicator.
+        level: Refinement level (each halves the contact element size).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        radius: R.
+        half_width: The Hertz contact radius a that the load is chosen to produce.
+        h_far: Element size away from the contact zone, relative to R.
+        refine: Radius of the refined zone around the contact point, relative to a.
+
+    Returns:
+        The scene; ``info`` holds the analytic ``a``, ``p0`` and the total ``load`` F.
+    """
+    level = check_level("level", level)
+    e_star = E / (1.0 - nu**2)
+    total = 4.0 * e_star * half_width**3 / (3.0 * radius)  # F for a = half_width
+    h_contact = half_width / 3.0 / 2**level
+    tags = {"top": 1, "surface": 2, "sym_x": 3, "sym_y": 4}
+    data = lower_ball(
+        comm,
+        3,
+        radius,
+        h_far * radius,
+        h_contact,
+        tags,
+        refine_radius=refine * half_width,
+        quarter=True,
+    )
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    # F/4 on the quarter's top face, over its discrete area (a polygon, not πR²/4)
+    area = msh.comm.allreduce(
+        fem.assemble_scalar(fem.form(fem.Constant(msh, 1.0) * ds(tags["top"]))), op=MPI.SUM
+    )
+    t = fem.Constant(msh, np.array([0.0, 0.0, -0.25 * total / area]))
+    bcs = [
+        fem.dirichletbc(
+            0.0, fem.locate_dofs_topological(V.sub(i), 2, facet_tags.find(tags[name])), V.sub(i)
+        )
+        for i, name in ((0, "sym_x"), (1, "sym_y"))
+    ]
+    a_exact, p0 = hertz_sphere_solution(total, radius, E, nu)
+    return Scene(
+        name="hertz_sphere",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=bcs,
+        contact_marker=tags["surface"],
+        obstacle=Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)),
+        h=h_contact,
+        info={
+            "E": E,
+            "nu": nu,
+            "radius": radius,
+            "load": total,
+            "level": level,
+            "a": a_exact,
+            "p0": p0,
+            "quarter": True,
+        },
+    )
+
+
 #: Scene builders by name.
-SCENES = {"example1": example1, "example2": example2, "example3": example3, "hertz": hertz}
+SCENES = {
+    "example1": example1,
+    "example2": example2,
+    "example3": example3,
+    "hertz": hertz,
+    "hertz_sphere": hertz_sphere,
+}

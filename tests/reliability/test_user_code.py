@@ -49,24 +49,36 @@ class FailsOnLastRank(Obstacle):
             raise ValueError("this rank's gap failed")
         return Plane((0.0, -0.01), (0.0, 1.0)).gap(x, n)
 
+    def signed_distance(self, x):
+        if COMM.rank == LAST:
+            raise ValueError("this rank's gap failed")
+        return Plane((0.0, -0.01), (0.0, 1.0)).signed_distance(x)
+
 
 class WritesIntoItsInput(Obstacle):
     def gap(self, x, n):
         n *= -1.0  # corrupts the normals if it could
         return np.full(x.shape[0], 0.01)
 
+    def signed_distance(self, x):
+        x[:, 1] -= 1.0  # moves the nodes if it could
+        return np.full(x.shape[0], 0.01), np.tile([0.0, 1.0], (x.shape[0], 1))
 
-def test_gap_raising_on_one_rank_raises_on_every_rank(scene):
+
+@pytest.mark.parametrize("model", ["obstacle", "body"])
+def test_gap_raising_on_one_rank_raises_on_every_rank(scene, model):
     with pytest.raises(ValueError, match="gap failed"):
-        _problem(scene, obstacle=FailsOnLastRank())
+        _problem(scene, obstacle=FailsOnLastRank(), contact_normal=model)
 
 
-def test_gap_cannot_modify_its_inputs(scene):
+@pytest.mark.parametrize("model", ["obstacle", "body"])
+def test_gap_cannot_modify_its_inputs(scene, model):
     with pytest.raises(ValueError, match="read-only"):
-        _problem(scene, obstacle=WritesIntoItsInput())
-    # and a good problem built afterwards has the right normals
-    problem = _problem(scene)
+        _problem(scene, obstacle=WritesIntoItsInput(), contact_normal=model)
+    # and a good problem built afterwards has the right normals and nodes
+    problem = _problem(scene, contact_normal=model)
     assert np.allclose(problem.contact.normals, [0.0, -1.0])
+    assert np.allclose(problem.contact.coordinates[:, 1], 0.0)
 
 
 def test_update_obstacle_raising_on_one_rank_keeps_the_old_obstacle(scene):
@@ -123,8 +135,8 @@ def test_nan_inputs_are_refused_up_front(scene):
         _problem(scene, bcs=[bad_bc])
 
     class Absurd(Obstacle):
-        def gap(self, x, n):
-            return np.full(x.shape[0], -1e300)
+        def signed_distance(self, x):
+            return np.full(x.shape[0], -1e300), np.tile([0.0, 1.0], (x.shape[0], 1))
 
     with pytest.raises(ValueError, match="deeper than the body's size"):
         _problem(scene, obstacle=Absurd())
