@@ -520,7 +520,7 @@ def hertz_sphere(
     nu: float = 0.3,
     radius: float = 8.0,
     half_width: float = 0.4,
-    h_far: float = 0.2,
+    h_far: float = 0.1,
     refine: float = 1.5,
 ) -> Scene:
     """A sphere on a rigid plane under a small load (3D Hertz), by symmetry a quarter.
@@ -528,8 +528,9 @@ def hertz_sphere(
     The lower quarter-hemisphere (x ≥ 0, y ≥ 0) of a ball of radius R resting on the
     plane z = 0, with u_x = 0 on x = 0 and u_y = 0 on y = 0 and a uniform downward
     traction on its flat top chosen so that Hertz's contact radius is ``half_width``
-    (R/20 by default: small strains, and a body large against the contact zone). Nothing holds the vertical motion but the contact (a
-    floating body, like the paper's cylinder). The mesh is refined around the contact
+    (R/20 by default: small strains, and a body large against the contact zone).
+    Nothing holds the vertical motion but the contact (a floating body, like the
+    paper's cylinder). The mesh is refined around the contact
     point: the element size there is a/3 / 2^level.
 
     Args:
