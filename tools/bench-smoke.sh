@@ -23,5 +23,6 @@ for b in "${parallel[@]}" work_precision parallel_scaling; do run "$py" "benchma
 run "$py" benchmarks/hard_cases.py --small
 run "$py" benchmarks/penalty_accuracy.py
 run "$py" benchmarks/strips.py --quick
+run "$py" benchmarks/contact_model.py --quick
 for b in "${parallel[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done
 echo "benchmarks: all ran"
