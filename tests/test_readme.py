@@ -31,3 +31,17 @@ def test_readme_load_steps_run():
     result = _run_blocks("example", "load-steps")["result"]
     assert result.converged and result.kkt.max() < 1e-3
     assert result.num_active > first.num_active  # heavier, and the floor is higher
+
+
+def test_readme_union_obstacle():
+    """The user-defined obstacle of the README: two planes, the nearest wins."""
+    import numpy as np
+
+    import admm_dolfinx
+
+    union = _run_blocks("union")["Union"](
+        admm_dolfinx.Plane((0.0, 0.0), (0.0, 1.0)), admm_dolfinx.Plane((0.0, -1.0), (1.0, 1.0))
+    )
+    g, nu = union.signed_distance(np.array([[0.0, 0.5], [-3.0, 1.0]]))
+    np.testing.assert_allclose(g, [0.5, (-3.0 + 2.0) / np.sqrt(2.0)])
+    np.testing.assert_allclose(nu, [[0.0, 1.0], [np.sqrt(0.5), np.sqrt(0.5)]])
