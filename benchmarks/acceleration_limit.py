@@ -38,10 +38,10 @@ import numpy as np
 from acceleration import TARGETS, ErrorTrace, reference, run_variant, say, write_table
 
 import admm_dolfinx
-from admm_dolfinx.admm import DEFAULT_ALPHA, DEFAULT_ANDERSON
-from admm_dolfinx.anderson import AndersonMixer
-from admm_dolfinx.operators import PenalisedOperator
-from admm_dolfinx.scenes import example1, example3
+from admm_dolfinx.admm.anderson import AndersonMixer
+from admm_dolfinx.admm.solver import DEFAULT_ALPHA, DEFAULT_ANDERSON
+from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.scenes.library import example1, example3
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.

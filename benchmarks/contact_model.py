@@ -22,9 +22,9 @@ from mpi4py import MPI
 from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx.baselines import solve_snes_vi
-from admm_dolfinx.forces import contact_force
-from admm_dolfinx.scenes import example2, example3, hertz, hertz_sphere, pressed_ball
+from admm_dolfinx.problem.forces import contact_force
+from admm_dolfinx.scenes.library import example2, example3, hertz, hertz_sphere, pressed_ball
+from admm_dolfinx.studies.baselines import solve_snes_vi
 
 
 def norm(x, comm):

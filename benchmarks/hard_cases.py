@@ -3,7 +3,7 @@
     python benchmarks/hard_cases.py           # the benchmark sizes
     python benchmarks/hard_cases.py --small   # the sizes the tests use
 
-For every case of :mod:`admm_dolfinx.hard_cases`: r*, iterations of the accelerated
+For every case of :mod:`admm_dolfinx.scenes.hard_cases`: r*, iterations of the accelerated
 default and of the paper's algorithm at r*, the largest relative KKT residual of
 each, and whether anything was NaN. In 3D the default penalises in the surface metric
 r(M + βL_Γ) at its own r (printed as r, next to r*). Writes out_benchmarks/hard_cases.csv.
@@ -19,7 +19,7 @@ from mpi4py import MPI
 from tables import print_and_save
 
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver
-from admm_dolfinx.hard_cases import CASES, build_case
+from admm_dolfinx.scenes.hard_cases import CASES, build_case
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.

@@ -20,9 +20,9 @@ from mpi4py import MPI
 from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx.plotting import plot_contact_pressure
-from admm_dolfinx.scenes import hertz, hertz_sphere
-from admm_dolfinx.validation import hertz_errors, observed_rate
+from admm_dolfinx.io.plotting import plot_contact_pressure
+from admm_dolfinx.scenes.library import hertz, hertz_sphere
+from admm_dolfinx.studies.hertz import hertz_errors, observed_rate
 
 
 def main():

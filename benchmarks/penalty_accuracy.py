@@ -24,7 +24,7 @@ from mpi4py import MPI
 from tables import print_and_save
 
 import admm_dolfinx
-from admm_dolfinx.scenes import example1, example2, example3
+from admm_dolfinx.scenes.library import example1, example2, example3
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.

@@ -34,7 +34,7 @@ from tables import print_and_save
 from timing import best_of_rounds
 
 import admm_dolfinx
-from admm_dolfinx.scenes import example1, example3
+from admm_dolfinx.scenes.library import example1, example3
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.

@@ -5,7 +5,7 @@ dense Schur complement S_C of A onto the contact *surface*, whose factorisation 
 more than A + r*NᵀMN's. For each mesh, in one run:
 
 * the 3D default: r* by the iterative estimate, β and r of the surface metric
-  (:mod:`admm_dolfinx.surface_metric`), one factorisation of A + rNᵀ(M + βL_Γ)N,
+  (:mod:`admm_dolfinx.linalg.surface_metric`), one factorisation of A + rNᵀ(M + βL_Γ)N,
   accelerated ADMM to the default tolerance (1e-6);
 * ``polish=True``: one factorisation of A condensed onto Γ_C, which gives r* densely,
   the compliance G and every step-1 solve; ADMM with active-set polishing;
@@ -42,10 +42,10 @@ from tables import print_and_save
 from timing import timed
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx.condensed import ContactSupport
-from admm_dolfinx.operators import PenalisedOperator
-from admm_dolfinx.petsc_schur import selected_inverse_entries
-from admm_dolfinx.scenes import example3
+from admm_dolfinx.linalg.condensed import ContactSupport
+from admm_dolfinx.linalg.mumps_schur import selected_inverse_entries
+from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.scenes.library import example3
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.
@@ -93,7 +93,8 @@ def contact_block_of_inverse(problem, operator, b, x):
     """Seconds to read the C × C block of (A + rNᵀMN)⁻¹ off the plain factors.
 
     The other exact route to the dense compliance that polishing needs: MUMPS's
-    selected entries of the inverse (:func:`admm_dolfinx.petsc_schur.selected_inverse_entries`),
+    selected entries of the inverse
+    (:func:`admm_dolfinx.linalg.mumps_schur.selected_inverse_entries`),
     with the factorisation the ADMM already has. Checked
     against one solve; one process (the requested pattern is a sequential matrix).
     """

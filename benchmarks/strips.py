@@ -4,14 +4,14 @@
     python benchmarks/strips.py --quick   # m = 1000, 2500
 
 A 20 × 0.1 strip clamped at its left end and pressed onto a rigid plane
-(:func:`admm_dolfinx.hard_cases.strip`) bends like a beam: its contact pencil has a
+(:func:`admm_dolfinx.scenes.hard_cases.strip`) bends like a beam: its contact pencil has a
 condition number of 1e9–1e10, which broke the dense r* (SLEPc did not converge) and
 is far beyond what ADMM alone converges in. For each size: the default solve (its
 path: dense or sparse polishing), iterations, time per phase, KKT residuals, and the
 distance to SNES VI on the same discrete problem. Then, side by side in one run, the
 two polishing paths on the same problems (the dense one forced, the sparse one forced;
 the strips and the paper's compact Example 1):
-the time ratio that ``DENSE_COST_RATIO`` in :mod:`admm_dolfinx.condensed` rests on.
+the time ratio that ``DENSE_COST_RATIO`` in :mod:`admm_dolfinx.linalg.condensed` rests on.
 Writes out_benchmarks/strips.csv and strips_paths.csv.
 """
 
@@ -26,10 +26,10 @@ from mpi4py import MPI
 from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx import condensed as condensed_module
-from admm_dolfinx.baselines import solve_snes_vi
-from admm_dolfinx.hard_cases import strip
-from admm_dolfinx.scenes import example1
+from admm_dolfinx.linalg import condensed as condensed_module
+from admm_dolfinx.scenes.hard_cases import strip
+from admm_dolfinx.scenes.library import example1
+from admm_dolfinx.studies.baselines import solve_snes_vi
 
 
 def relative_difference(a, b, comm) -> float:

@@ -49,10 +49,10 @@ from mpi4py import MPI
 from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver, Ball, Plane
-from admm_dolfinx.admm import ADMMConvergenceError
-from admm_dolfinx.operators import PenalisedOperator
-from admm_dolfinx.scenes import Scene, example3, pressed_block
-from admm_dolfinx.surface_metric import SurfaceMetric
+from admm_dolfinx.admm.solver import ADMMConvergenceError
+from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.scenes.library import Scene, example3, pressed_block
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.

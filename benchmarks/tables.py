@@ -10,7 +10,7 @@ import csv
 from collections.abc import Sequence
 from pathlib import Path
 
-from admm_dolfinx.output import atomic_file
+from admm_dolfinx.io.output import atomic_file
 
 
 def markdown_table(rows: Sequence[dict]) -> str:

@@ -40,10 +40,10 @@ import scipy.sparse as sp
 from mpi4py import MPI
 
 import admm_dolfinx
-from admm_dolfinx import baselines
-from admm_dolfinx.baselines import solve_snes_vi
-from admm_dolfinx.scenes import example1, example3
-from admm_dolfinx.sweep import sample_penalty
+from admm_dolfinx.scenes.library import example1, example3
+from admm_dolfinx.studies import baselines
+from admm_dolfinx.studies.baselines import solve_snes_vi
+from admm_dolfinx.studies.sweep import sample_penalty
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.

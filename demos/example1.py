@@ -28,9 +28,9 @@ import logging
 from mpi4py import MPI
 
 import admm_dolfinx
-from admm_dolfinx.report import write_scene_outputs
-from admm_dolfinx.scenes import example1
-from admm_dolfinx.sweep import paper_penalty_grid, sample_penalty
+from admm_dolfinx.io.report import write_scene_outputs
+from admm_dolfinx.scenes.library import example1
+from admm_dolfinx.studies.sweep import paper_penalty_grid, sample_penalty
 
 parser = argparse.ArgumentParser(description="Example 1 of Koko (2019)")
 parser.add_argument("--h", type=float, default=1 / 32, help="mesh size (default 1/32)")
@@ -66,7 +66,7 @@ def say(*text):
 
 # ## The scene
 #
-# {py:func}`admm_dolfinx.scenes.example1` declares only what the physics needs: the
+# {py:func}`admm_dolfinx.scenes.library.example1` declares only what the physics needs: the
 # rectangle meshed by gmsh on rank 0 and distributed, its four sides tagged, the
 # clamp, the traction and the analytic foundation `Plane((0, -0.01), (0, 1))`, whose
 # normal points from the obstacle towards the body. No obstacle mesh is needed.

@@ -38,8 +38,8 @@ import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 
-from admm_dolfinx.output import output_folder, write_json
-from admm_dolfinx.plotting import plot_contact_pressure
+from admm_dolfinx.io.output import output_folder, write_json
+from admm_dolfinx.io.plotting import plot_contact_pressure
 
 parser = argparse.ArgumentParser(description="Load steps: a block pressed onto a cylinder")
 parser.add_argument("--n", type=int, default=64, help="cells along the bottom (default 64)")

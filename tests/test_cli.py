@@ -7,7 +7,7 @@ import pytest
 from mpi4py import MPI
 
 from admm_dolfinx.cli import main
-from admm_dolfinx.output import output_folder, write_json
+from admm_dolfinx.io.output import output_folder, write_json
 
 
 def _shared_tmp(tmp_path_factory, name):
@@ -133,7 +133,7 @@ def test_cli_unwritable_output_is_an_error_message(tmp_path_factory, capsys):
 def test_a_figure_that_fails_on_rank_0_fails_on_every_rank(tmp_path_factory, monkeypatch):
     """Rank 0 draws alone: a renderer error there (planted) is raised on every rank by
     the plot itself, before any rank moves on to another collective call."""
-    import admm_dolfinx.plotting as plotting
+    import admm_dolfinx.io.plotting as plotting
 
     def broken():
         raise ValueError("no renderer")

@@ -9,7 +9,7 @@ import pytest
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx.scenes import example1
+from admm_dolfinx.scenes.library import example1
 
 from conftest import gather_nodal, rel_diff
 
@@ -80,7 +80,7 @@ def test_parallel_surface_metric_matches_serial():
     μ_max's layer solves start from a partition-independent vector. Step 2 runs on
     rank 0 in rank order of the nodes, so only round-off differs.
     """
-    from admm_dolfinx.scenes import example3
+    from admm_dolfinx.scenes.library import example3
 
     results = {}
     for name, comm in (("par", MPI.COMM_WORLD), ("ser", MPI.COMM_SELF)):

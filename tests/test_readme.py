@@ -25,7 +25,7 @@ def test_readme_example_runs(capsys):
 
 
 def test_readme_load_steps_run():
-    """The load-step block, after the example (tests/test_load_steps.py checks that no
+    """The load-step block, after the example (tests/admm/test_load_steps.py checks that no
     step refactorises and that each matches a problem assembled afresh)."""
     first = _run_blocks("example")["result"]
     result = _run_blocks("example", "load-steps")["result"]

@@ -20,10 +20,9 @@ from __future__ import annotations
 
 from admm_dolfinx import _bootstrap  # noqa: F401  (must precede dolfinx/petsc4py)
 from admm_dolfinx.admm import ADMMConvergenceError, ADMMResult, ADMMSolver
-from admm_dolfinx.kkt import KKTResiduals
-from admm_dolfinx.obstacles import Ball, Obstacle, Plane
 from admm_dolfinx.penalty import PenaltyEstimate, estimate_penalty
-from admm_dolfinx.problem import ContactProblem
+from admm_dolfinx.problem import Ball, ContactProblem, Obstacle, Plane
+from admm_dolfinx.problem.kkt import KKTResiduals
 
 try:
     from importlib.metadata import version as _version

@@ -1,6 +1,6 @@
 """The 2D defaults on very compliant bodies with thousands of contact nodes.
 
-A 20 × 0.1 strip clamped at one end (:func:`admm_dolfinx.hard_cases.strip`) has a
+A 20 × 0.1 strip clamped at one end (:func:`admm_dolfinx.scenes.hard_cases.strip`) has a
 contact pencil with κ ≈ 1e10: the dense r* failed there (SLEPc did not converge),
 and above 4000 contact nodes the defaults needed more than max_iter. Now both
 polishing paths converge in a few iterations; each answer is compared with SNES VI
@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from admm_dolfinx import ADMMSolver, condensed
-from admm_dolfinx.baselines import solve_snes_vi
-from admm_dolfinx.hard_cases import strip
-from admm_dolfinx.polish import ActiveSetPolish
-from admm_dolfinx.sparse_polish import SparsePolish
+from admm_dolfinx import ADMMSolver
+from admm_dolfinx.admm.polish_dense import ActiveSetPolish
+from admm_dolfinx.admm.polish_sparse import SparsePolish
+from admm_dolfinx.linalg import condensed
+from admm_dolfinx.scenes.hard_cases import strip
+from admm_dolfinx.studies.baselines import solve_snes_vi
 
 pytestmark = pytest.mark.timeout(300)
 COMM = MPI.COMM_WORLD

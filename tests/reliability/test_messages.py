@@ -18,8 +18,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver, ContactProblem, Plane
-from admm_dolfinx.material import LinearElastic
-from admm_dolfinx.scenes import example1, example3
+from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.library import example1, example3
 
 pytestmark = pytest.mark.timeout(120)
 COMM = MPI.COMM_WORLD

@@ -19,7 +19,7 @@ import pytest
 from mpi4py import MPI
 
 from admm_dolfinx.cli import main
-from admm_dolfinx.output import STAGING_MARK, output_folder, write_json
+from admm_dolfinx.io.output import STAGING_MARK, output_folder, write_json
 
 pytestmark = pytest.mark.timeout(180)
 COMM = MPI.COMM_WORLD
@@ -63,7 +63,7 @@ import sys, time
 from pathlib import Path
 import admm_dolfinx
 from mpi4py import MPI
-from admm_dolfinx.output import output_folder
+from admm_dolfinx.io.output import output_folder
 with output_folder(MPI.COMM_SELF, sys.argv[1]) as tmp:
     (tmp / "result.txt").write_text("half of it")
     print("writing", flush=True)

@@ -16,8 +16,8 @@ import pytest
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSolver, Ball, Plane, estimate_penalty
-from admm_dolfinx.baselines import solve_snes_vi
-from admm_dolfinx.kkt import compute_kkt_residuals
+from admm_dolfinx.problem.kkt import compute_kkt_residuals
+from admm_dolfinx.studies.baselines import solve_snes_vi
 
 from partitions import CELLS, PARTITIONS, gathered, owners, pressed_box
 
@@ -158,8 +158,8 @@ def test_snes_vi_baseline_on_partitions(gdim, cell, how):
 @pytest.mark.parametrize("gdim,cell,how", AWKWARD[:2])
 def test_outputs_on_partitions(gdim, cell, how, tmp_path_factory):
     """XDMF and the figures are written on every partition (a rank without cells too)."""
-    from admm_dolfinx.output import output_folder, write_xdmf
-    from admm_dolfinx.plotting import plot_contact_pressure
+    from admm_dolfinx.io.output import output_folder, write_xdmf
+    from admm_dolfinx.io.plotting import plot_contact_pressure
 
     folder = COMM.bcast(str(tmp_path_factory.mktemp("out")) if COMM.rank == 0 else None)
     problem = pressed_box(COMM, gdim, cell, how, obstacle=_ball(gdim))

@@ -18,7 +18,7 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSolver, ContactProblem, Obstacle, Plane
-from admm_dolfinx.scenes import example1
+from admm_dolfinx.scenes.library import example1
 
 pytestmark = pytest.mark.timeout(60)
 COMM = MPI.COMM_WORLD

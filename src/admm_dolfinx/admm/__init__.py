@@ -1,0 +1,8 @@
+"""The ADMM iteration: the solver, Anderson acceleration, polishing, the surface metric.
+
+Stage 3 of the pipeline: from the problem and its penalty to a result.
+"""
+
+from admm_dolfinx.admm.solver import ADMMConvergenceError, ADMMResult, ADMMSolver
+
+__all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]

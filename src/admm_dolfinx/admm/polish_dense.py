@@ -1,0 +1,237 @@
+"""Active-set polishing: the exact solution once ADMM has found where the body touches.
+
+Given the set 𝒜 of contact nodes that touch, the contact problem is an equality-
+constrained quadratic programme, whose solution is one linear solve away. With the
+dense Schur complement S_C of A onto the contact dofs (what
+:class:`~admm_dolfinx.linalg.condensed.CondensedOperator` computes in 2D, and what the r*
+estimate uses) that solve reduces to an m × m dense system on Γ_C, and the ADMM
+state (p, λ) it gives is a fixed point of the ADMM map: one more step-1 solve with the
+stored factors returns the displacement.
+
+Derivation. Let T = Wᵀ (S_C + r K_CC)⁻¹ W be the compliance of Γ_C at the penalty r
+(W = Nᵀ M^{½} on C), and ŷ = M^{½} N u. A step-1 solve from the state (p, λ) gives
+ŷ = t + T M^{½} q with q = r p − λ and t the (unknown) response to the load alone; so
+one iterate (N u, q) determines t = M^{½} N u − T M^{½} q. Eliminating the interior
+from A u − f + NᵀMλ = 0 with λ = 0 off 𝒜 and (N u)_𝒜 = g_𝒜 leaves
+
+    (I − rT) ŷ + T M^{½} λ = t,      ŷ_𝒜 = M^{½}_𝒜 g_𝒜,
+
+m equations for the unknowns ŷ off 𝒜 and λ on 𝒜 (Dirichlet values included: they
+enter t). The condition number of this system is about √κ, κ the condition number of
+the contact pencil.
+
+The guess 𝒜 = {λ⁺ > 0} comes from the ADMM iterate. It is corrected by
+primal-dual active-set steps (nodes with λ < 0 leave 𝒜, nodes that penetrate join it),
+at most :data:`MAX_ROUNDS` of them; a guess already tried is not tried again (the
+outcome depends on 𝒜 alone). An empty guess (the first iterates, before ADMM
+predicts any contact) starts from the unconstrained solution: its penetrating nodes
+join first. For a floating body that system is singular, and the attempt fails
+until ADMM's guess holds the body. Only a state that satisfies every sign condition is
+returned; the ADMM loop then evaluates it like any other proposal (safeguard and
+stopping test), so a polished result meets the same test as any other.
+
+The dense work is done on rank 0 (the nodal values are gathered there, the result is
+scattered back), so the polished state is the same on any number of processes to
+round-off. Each round costs O(m³): where that is large against the step-1 solves
+(thousands of contact nodes), attempts are skipped while polishing has taken longer
+than the rest of the iterations, so it costs about as much as they do at most. That
+decision depends on measured times; where it never binds (the paper's meshes, whose
+dense work takes milliseconds) the iteration is deterministic.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import numpy.typing as npt
+
+from admm_dolfinx._logging import get_logger
+from admm_dolfinx._mpi import RankLayout
+from admm_dolfinx.penalty.dense import compliance_matrix
+from admm_dolfinx.problem.contact_problem import ContactProblem
+
+__all__ = ["MAX_ROUNDS", "ActiveSetPolish"]
+
+logger = get_logger(__name__)
+
+#: Primal-dual active-set corrections of one guess.
+MAX_ROUNDS = 10
+#: Relative tolerance of the sign conditions (λ ≥ 0 on 𝒜, N u ≤ g off it): round-off
+#: of the dense solve, far below any stopping tolerance.
+SIGN_TOL = 1e-10
+
+
+class ActiveSetPolish:
+    """Exact solutions for guessed active sets, from the dense Schur complement S_C.
+
+    Args:
+        problem: The contact problem.
+        schur: S_C on rank 0 (None elsewhere).
+        k_cc: K = NᵀMN on C × C, rank 0.
+        weights: W = Nᵀ M^{½} on C (c × m), rank 0.
+
+    Attributes:
+        attempts: Guesses tried since :meth:`reset`.
+        rounds: Dense solves since :meth:`reset`.
+        setup_time: Seconds of the last :meth:`set_penalty` (T = Wᵀ(S_C + rK_CC)⁻¹W).
+        skipped: Attempts skipped for time since :meth:`reset`.
+        time: Seconds spent since :meth:`reset` (all ranks wait for rank 0).
+    """
+
+    def __init__(
+        self,
+        problem: ContactProblem,
+        schur: npt.NDArray[np.float64] | None,
+        k_cc: npt.NDArray[np.float64] | None,
+        weights: npt.NDArray[np.float64] | None,
+    ):
+        self.comm = problem.comm
+        self.problem = problem
+        self._schur, self._k_cc, self._weights = schur, k_cc, weights
+        self._layout = RankLayout(self.comm, problem.contact.gap.size)
+        self._sqrt_mass = self._layout.gather(np.sqrt(problem.contact.mass))
+        self.penalty = float("nan")
+        self.setup_time = 0.0
+        self._compliance: npt.NDArray[np.float64] | None = None
+        self._shifted: npt.NDArray[np.float64] | None = None
+        self._gap: npt.NDArray[np.float64] | None = None
+        self._tried: set[bytes] = set()
+        self.attempts = self.rounds = self.skipped = 0
+        self.time = 0.0
+
+    def destroy(self) -> None:
+        """Nothing to free (the dense arrays are NumPy's)."""
+
+    @classmethod
+    def from_operator(cls, problem: ContactProblem, operator) -> ActiveSetPolish:
+        """From a :class:`~admm_dolfinx.linalg.condensed.CondensedOperator`.
+
+        The arrays outlive the operator.
+        """
+        return cls(problem, operator.schur, operator.k_cc, operator.support.weights)
+
+    def set_penalty(self, r: float) -> None:
+        """Use the penalty r of the step-1 solves: T and I − rT on rank 0; collective.
+
+        A set-up cost, like the factorisation (:attr:`setup_time`), not paid inside the
+        iterations.
+        """
+        if r == self.penalty:
+            return
+        t0 = time.perf_counter()
+        self.penalty = float(r)
+        self._tried.clear()
+        self._compliance = self._shifted = None
+        if self.comm.rank == 0:
+            try:  # never raise on rank 0 alone: the other ranks would wait
+                self._compliance = compliance_matrix(self._schur, self._k_cc, self._weights, r)
+                self._shifted = np.eye(self._compliance.shape[0]) - r * self._compliance
+            except Exception as error:  # polishing is an option: the ADMM goes on without
+                self._compliance = self._shifted = None
+                logger.warning(
+                    "Active-set polishing is off for this penalty: %s: %s",
+                    type(error).__name__,
+                    error,
+                )
+        self.setup_time = self.comm.bcast(time.perf_counter() - t0, root=0)
+
+    def reset(self) -> None:
+        """Start a solve: read the current gap; forget the guesses tried; collective."""
+        self._gap = self._layout.gather(self.problem.contact.gap)
+        self._tried.clear()
+        self.attempts = self.rounds = self.skipped = 0
+        self.time = 0.0
+
+    def attempt(
+        self,
+        normal_u: npt.NDArray[np.float64],
+        force: npt.NDArray[np.float64],
+        guess: npt.NDArray[np.bool_],
+        budget: float = math.inf,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
+        """The exact state (p, λ) for the active set ``guess``, or None; collective.
+
+        Args:
+            normal_u: N u of a step-1 solve (local nodal values).
+            force: Its q = r p − λ (the normal force of its right-hand side).
+            guess: The guessed active set (local mask).
+            budget: Seconds the caller has spent otherwise (its iterations): while the
+                polishing time so far exceeds it, the attempt is skipped (decided on
+                rank 0), so that polishing costs about as much as the iterations at
+                most.
+
+        Returns:
+            The local parts of p = min(N u, g) and λ ≥ 0 of the solution, if a
+            primal-dual active-set correction of ``guess`` satisfies every sign
+            condition; None otherwise.
+        """
+        t0 = time.perf_counter()
+        data = self._layout.gather(np.stack([normal_u, force, guess.astype(float)]))
+        outcome, rounds, skip = None, 0, False
+        if self.comm.rank == 0:
+            skip = self.time > budget
+            if not skip:
+                try:  # never raise on rank 0 alone: the other ranks would wait
+                    outcome, rounds = self._solve(data[0], data[1], data[2] > 0.5)
+                except Exception as error:  # an attempt that fails is one not taken
+                    logger.warning("Polishing attempt failed: %s: %s", type(error).__name__, error)
+                    outcome, rounds = None, 1
+        rounds, found, skip = self.comm.bcast((rounds, outcome is not None, skip), root=0)
+        self.attempts += int(rounds > 0)
+        self.rounds += rounds
+        self.skipped += int(skip)
+        local = None
+        if found:
+            pair = self._layout.scatter(np.stack(outcome) if outcome is not None else None, 2)
+            local = (pair[0], pair[1])
+        self.time += time.perf_counter() - t0
+        return local
+
+    # ---------------------------------------------------------------- rank 0
+    def _solve(self, normal_u, force, guess):
+        """Primal-dual active-set corrections from ``guess`` (rank 0).
+
+        Returns:
+            ((p, λ) or None, the number of dense solves).
+        """
+        if self._compliance is None or guess.tobytes() in self._tried:
+            return None, 0
+        sq, g = self._sqrt_mass, self._gap
+        t = sq * normal_u - self._compliance @ (sq * force)
+        finite = np.isfinite(g)
+        active = guess
+        for rounds in range(1, MAX_ROUNDS + 1):
+            self._tried.add(active.tobytes())
+            solution = self._equality_solution(t, active, sq * np.where(active, g, 0.0))
+            if solution is None:
+                return None, rounds
+            nu, lam = solution[0] / sq, solution[1] / sq
+            lam_tol = SIGN_TOL * float(np.max(np.abs(lam)))
+            u_tol = SIGN_TOL * max(np.max(np.abs(nu)), np.max(np.abs(g[finite]), initial=0.0))
+            leave = active & (lam < -lam_tol)
+            join = ~active & (nu > g + u_tol)
+            if not leave.any() and not join.any():
+                return (np.minimum(nu, g), np.maximum(lam, 0.0)), rounds
+            active = (active & ~leave) | join
+            if active.tobytes() in self._tried:
+                return None, rounds
+        return None, MAX_ROUNDS
+
+    def _equality_solution(self, t, active, y_active):
+        """Solve (I − rT) ŷ + T λ̂ = t with ŷ_𝒜 given and λ̂ = 0 off 𝒜 (rank 0)."""
+        r, T, shifted = self.penalty, self._compliance, self._shifted
+        free = ~active
+        system = np.empty_like(T)
+        system[:, free] = shifted[:, free]
+        system[:, active] = r * T[:, active]  # unknown λ̂/r: columns of the same scale
+        try:
+            x = np.linalg.solve(system, t - shifted[:, active] @ y_active[active])
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(x)):
+            return None
+        y_hat = np.where(active, y_active, x)
+        lam_hat = np.where(active, r * x, 0.0)
+        return y_hat, lam_hat

@@ -1,0 +1,232 @@
+"""Active-set polishing with sparse factorisations: for contact zones too large to be dense.
+
+:mod:`admm_dolfinx.admm.polish_dense` solves the equality-constrained problem of a guessed
+contact set 𝒜 on the dense compliance of Γ_C, which costs O(m³) per guess and O(m²)
+memory: right for the paper's meshes, out of reach at tens of thousands of contact
+nodes. This module solves the same problem in the whole body instead,
+
+    minimise ½uᵀAu − fᵀu   subject to   (N u)_j = g_j,  j ∈ 𝒜,
+
+by eliminating the constrained normal displacements with the nodal projector of the
+active nodes (:func:`~admm_dolfinx.penalty.contact_operators.projected_stiffness`):
+u = u_g + w, with u_g the prescribed normal displacements and w the solution of
+Â w = P(f − A u_g), Â = P A P + c N_𝒜ᵀN_𝒜 (A with the active normal rows and columns
+replaced by c times the identity, in rotated coordinates). λ on 𝒜 then follows from
+the residual f − A u = NᵀMλ. One sparse numeric factorisation of Â per guess (its
+sparsity is A's, so the symbolic analysis is done once); distributed like step 1, on
+any partition.
+
+As the dense polisher, it corrects the guess by primal-dual active-set steps (nodes
+with λ < 0 leave 𝒜, nodes that penetrate join it; at most :data:`MAX_SPARSE_ROUNDS`),
+returns only a state that meets every sign condition, and skips attempts while it
+has taken longer than the rest of the iterations.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from admm_dolfinx._logging import get_logger
+from admm_dolfinx.admm.polish_dense import SIGN_TOL
+from admm_dolfinx.linalg.petsc import check_solve, create_factor_solver
+from admm_dolfinx.penalty.contact_operators import NodalMap, projected_stiffness
+from admm_dolfinx.problem.contact_problem import ContactProblem
+
+__all__ = ["MAX_SPARSE_ROUNDS", "SparsePolish"]
+
+logger = get_logger(__name__)
+
+#: Primal-dual active-set corrections of one guess. Where the contact zone's edge
+#: moves by a node per round (a beam lifting off near a clamp) it needs more rounds
+#: than the dense polisher's 10; each costs a factorisation, and the time budget of
+#: the polisher bounds the total.
+MAX_SPARSE_ROUNDS = 50
+
+
+class SparsePolish:
+    """Exact solutions for guessed active sets, by sparse factorisations of the body.
+
+    The interface of :class:`~admm_dolfinx.admm.polish_dense.ActiveSetPolish`.
+
+    Args:
+        problem: The contact problem.
+        prefix: Options prefix of the factorisations (``{prefix}`` + MUMPS options).
+        petsc_options: Options of the factorisation (MUMPS Cholesky by default).
+
+    Attributes:
+        attempts: Guesses tried since :meth:`reset`.
+        rounds: Factorisations since :meth:`reset`.
+        setup_time: 0 (nothing is set up per penalty).
+        skipped: Attempts skipped for time since :meth:`reset`.
+        time: Seconds spent since :meth:`reset`.
+    """
+
+    def __init__(
+        self,
+        problem: ContactProblem,
+        prefix: str,
+        petsc_options: Mapping[str, Any] | None = None,
+    ):
+        self.problem = problem
+        self.comm: MPI.Comm = problem.comm
+        self.prefix = prefix
+        self._options = dict(petsc_options or {})
+        self.penalty = float("nan")
+        self.setup_time = 0.0
+        self._matrix: PETSc.Mat | None = None
+        self._ksp: PETSc.KSP | None = None
+        self._tried: set[bytes] = set()
+        self.attempts = self.rounds = self.skipped = 0
+        self.time = 0.0
+
+    def set_penalty(self, r: float) -> None:
+        """Nothing depends on r (the equality-constrained problem does not)."""
+        self.penalty = float(r)
+
+    def reset(self) -> None:
+        """Start a solve: forget the guesses tried; collective."""
+        self._tried.clear()
+        self.attempts = self.rounds = self.skipped = 0
+        self.time = 0.0
+
+    def destroy(self) -> None:
+        """Free the factorisation; collective."""
+        for obj in (self._ksp, self._matrix):
+            if obj is not None:
+                obj.destroy()
+        self._ksp = self._matrix = None
+
+    # ------------------------------------------------------------------ attempt
+    def attempt(
+        self,
+        normal_u: npt.NDArray[np.float64],
+        force: npt.NDArray[np.float64],
+        guess: npt.NDArray[np.bool_],
+        budget: float = math.inf,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
+        """The exact state (p, λ) for the active set ``guess``, or None; collective.
+
+        Args:
+            normal_u: N u of a step-1 solve (unused: the solve starts from the load).
+            force: Its normal force (unused).
+            guess: The guessed active set (local mask).
+            budget: Seconds the caller has spent otherwise: while the polishing time
+                so far exceeds it, the attempt is skipped.
+
+        Returns:
+            The local parts of p = min(N u, g) and λ ≥ 0, or None.
+        """
+        del normal_u, force
+        t0 = time.perf_counter()
+        if self.comm.allreduce(self.time > budget, op=MPI.LOR):
+            self.skipped += 1
+            return None
+        c = self.problem.contact
+        gap = c.gap
+        finite = np.isfinite(gap)
+        active = guess & finite
+        outcome = None
+        tried_any = False
+        for _ in range(MAX_SPARSE_ROUNDS):
+            key = self._key(active)
+            if key in self._tried:
+                break
+            self._tried.add(key)
+            tried_any = True
+            nu, lam = self._equality_solution(active)
+            self.rounds += 1
+            lam_tol = SIGN_TOL * self.problem.global_norm(lam, np.inf)
+            scale = max(
+                self.problem.global_norm(nu, np.inf),
+                self.problem.global_norm(np.where(finite, gap, 0.0), np.inf),
+            )
+            leave = active & (lam < -lam_tol)
+            join = ~active & finite & (nu > gap + SIGN_TOL * scale)
+            changes = self.comm.allreduce(int(leave.sum() + join.sum()), op=MPI.SUM)
+            if changes == 0:
+                outcome = (np.minimum(nu, gap), np.where(active, np.maximum(lam, 0.0), 0.0))
+                break
+            active = (active & ~leave) | join
+        self.attempts += int(tried_any)
+        self.time += time.perf_counter() - t0
+        return outcome
+
+    def _key(self, active: npt.NDArray[np.bool_]) -> bytes:
+        """A digest of the global active set, the same on every rank; collective."""
+        digest = hashlib.sha1(np.packbits(active).tobytes()).digest()
+        return b"".join(self.comm.allgather(digest))
+
+    def _equality_solution(self, active: npt.NDArray[np.bool_]):
+        """(N u, λ) of the problem with (N u)_j = g_j on ``active``; collective."""
+        problem, c = self.problem, self.problem.contact
+        bs = problem.V.dofmap.index_map_bs
+        nodes = c.nodes[active]
+        ntilde = c.free_normals[active]
+        nodal = NodalMap(nodes, ntilde, bs, problem.gdim)
+        hat = projected_stiffness(problem.A, nodal)
+        try:
+            if self._matrix is None:
+                self._matrix = hat.duplicate(copy=True)
+                self._matrix.setOption(PETSc.Mat.Option.SPD, True)
+                self._ksp = create_factor_solver(
+                    self._matrix,
+                    self.prefix,
+                    self._options,
+                    problem.gdim,
+                    what="the sparse active-set polish",
+                )
+            else:
+                hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+                self._ksp.setOperators(self._matrix)
+                self._ksp.setUp()
+        finally:
+            hat.destroy()
+        # u_g: the prescribed normal displacement ĝ_j = g_j − (n_j − ñ_j)·u_D at active
+        # nodes (the Dirichlet part of the normal), along ñ_j / |ñ_j|²
+        x_g, rhs, x, work = (problem.create_vector() for _ in range(4))
+        try:
+            x_g.set(0.0)
+            fixed_part = self._dirichlet_normal()[active]
+            target = c.gap[active] - fixed_part
+            nodal.scatter(target, x_g, 1.0 / np.einsum("ij,ij->i", ntilde, ntilde))
+            problem.A.mult(x_g, work)
+            problem.load_vector().copy(rhs)
+            rhs.axpy(-1.0, work)  # f − A u_g
+            # P: remove the active normal components
+            nodal.scatter(nodal.gather(rhs), work, 1.0 / np.einsum("ij,ij->i", ntilde, ntilde))
+            rhs.axpy(-1.0, work)
+            self._ksp.solve(rhs, x)
+            check_solve(self._ksp, "the sparse active-set polish")
+            x.axpy(1.0, x_g)
+            problem.A.mult(x, work)
+            work.aypx(-1.0, problem.load_vector())  # f − A u = NᵀMλ on the free dofs
+            lam = problem.multiplier_from_residual(work)
+            nu = problem.apply_normal(x)
+        finally:
+            for vec in (x_g, rhs, x, work):
+                vec.destroy()
+        return nu, np.where(active, lam, 0.0)
+
+    def _dirichlet_normal(self) -> npt.NDArray[np.float64]:
+        """(n_j − ñ_j) · u_D,j: the part of N u that Dirichlet conditions prescribe."""
+        from dolfinx.fem import petsc as fem_petsc
+
+        problem, c = self.problem, self.problem.contact
+        bs = problem.V.dofmap.index_map_bs
+        values = problem.create_vector()
+        try:
+            values.set(0.0)
+            fem_petsc.set_bc(values, problem.bcs)
+            u_d = values.array_r.reshape(-1, bs)[c.nodes, : problem.gdim]
+            return np.einsum("ij,ij->i", u_d, c.normals - c.free_normals)
+        finally:
+            values.destroy()

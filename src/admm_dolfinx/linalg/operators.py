@@ -1,0 +1,148 @@
+"""The factorised penalised stiffness A_r = A + r NᵀMN, shared by ADMM and r*.
+
+One :class:`PenalisedOperator` holds one matrix and one KSP. Changing r keeps the
+sparsity pattern, so PETSc/MUMPS redo only the *numeric* factorisation and reuse the
+symbolic analysis. The ADMM solver and the eigenvalue estimate of r* use the same
+instance, so computing r* costs no extra symbolic factorisation of A_r.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+from dolfinx.common import Timer
+from petsc4py import PETSc
+
+from admm_dolfinx.linalg.petsc import PetscOwner, check_solve, create_factor_solver
+from admm_dolfinx.problem.contact_problem import ContactProblem
+
+__all__ = ["FactorisedOperator", "PenalisedOperator"]
+
+
+class FactorisedOperator(PetscOwner):
+    """Owns a matrix and the KSP that factorises it; frees both (the step-1 operators)."""
+
+    _petsc_objects = ("ksp", "matrix")
+    matrix: PETSc.Mat | None = None
+    ksp: PETSc.KSP | None = None
+
+
+class PenalisedOperator(FactorisedOperator):
+    """A + r NᵀMN with a reusable factorisation.
+
+    Args:
+        problem: The contact problem (provides A and K = NᵀMN).
+        prefix: Options prefix of the KSP.
+        petsc_options: KSP/PC options overriding MUMPS Cholesky.
+
+    Attributes:
+        penalty: Current r (NaN before the first :meth:`set_penalty`).
+        solves: Number of :meth:`solve` calls so far.
+        timings: Seconds of the last ``operator`` build and ``factorization``.
+    """
+
+    def __init__(
+        self,
+        problem: ContactProblem,
+        prefix: str,
+        petsc_options: Mapping[str, Any] | None = None,
+    ):
+        self.problem = problem
+        self.prefix = prefix
+        self._options = dict(petsc_options or {})
+        self.matrix: PETSc.Mat | None = None
+        self.ksp: PETSc.KSP | None = None
+        self.penalty = float("nan")
+        self.solves = 0
+        self.timings: dict[str, float] = {"operator": 0.0, "factorization": 0.0}
+        self._label = "A + r NᵀMN"
+        self._penalty_matrix: PETSc.Mat | None = None
+        self._penalty_name = "NᵀMN"
+
+    def use_penalty_matrix(self, matrix: PETSc.Mat, name: str) -> None:
+        """Penalise with ``matrix`` instead of K = NᵀMN from the next :meth:`set_penalty` on.
+
+        Args:
+            matrix: Symmetric positive semi-definite, its pattern within A's (e.g.
+                Nᵀ(M + βL_Γ)N of :mod:`admm_dolfinx.linalg.surface_metric`); the operator
+                takes ownership.
+            name: What it is, for labels (``"Nᵀ(M + βL_Γ)N"``).
+        """
+        if self._penalty_matrix is not None:
+            self._penalty_matrix.destroy()
+        self._penalty_matrix = matrix
+        self._penalty_name = name
+        self.penalty = float("nan")  # the next set_penalty refactorises
+
+    def destroy(self) -> None:
+        """Free the matrix, the KSP and a penalty matrix given to :meth:`use_penalty_matrix`."""
+        super().destroy()
+        if self._penalty_matrix is not None:
+            self._penalty_matrix.destroy()
+            self._penalty_matrix = None
+
+    def set_penalty(self, r: float) -> None:
+        """Form A + rK and factorise it (numeric only, after the first time).
+
+        Args:
+            r: Penalty parameter (≥ 0; the caller validates user input).
+        """
+        if r == self.penalty:
+            return
+        A = self.problem.A
+        K = self.problem.K if self._penalty_matrix is None else self._penalty_matrix
+        with Timer("admm_dolfinx: operator A + rK"):
+            t0 = time.perf_counter()
+            if self.matrix is None:
+                self.matrix = A.duplicate(copy=True)
+                self.matrix.setOption(PETSc.Mat.Option.SPD, True)
+            else:
+                A.copy(self.matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            self.matrix.axpy(r, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            self.timings["operator"] = time.perf_counter() - t0
+        with Timer("admm_dolfinx: factorisation"):
+            t0 = time.perf_counter()
+            self._ensure_ksp()
+            self.ksp.setUp()
+            self.timings["factorization"] = time.perf_counter() - t0
+        self.penalty = float(r)
+        self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
+
+    def _ensure_ksp(self) -> None:
+        """Create the KSP (factorising), or tell it that the matrix values changed."""
+        if self.ksp is None:
+            self.ksp = create_factor_solver(
+                self.matrix, self.prefix, self._options, self.problem.gdim
+            )
+        else:
+            self.ksp.setOperators(self.matrix)
+
+    def load(self, values: PETSc.Mat, label: str) -> None:
+        """Factorise another SPD matrix whose pattern is a subset of A's (numeric only).
+
+        Used by the r* estimate to factorise the projected stiffness in the same
+        matrix, so the symbolic analysis is shared by every factorisation.
+
+        Args:
+            values: The matrix; its sparsity pattern must be contained in A's.
+            label: What it is, for timers and error messages.
+        """
+        if self.matrix is None:
+            self.matrix = self.problem.A.duplicate(copy=False)
+            self.matrix.setOption(PETSc.Mat.Option.SPD, True)
+        self.matrix.zeroEntries()
+        self.matrix.axpy(1.0, values, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        with Timer(f"admm_dolfinx: factorisation ({label})"):
+            self._ensure_ksp()
+            self.ksp.setUp()
+        self.penalty = float("nan")
+        self._label = label
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        """Solve (A + rK) x = b with the stored factorisation."""
+        assert self.ksp is not None, "set_penalty must be called first"
+        self.ksp.solve(b, x)
+        self.solves += 1
+        check_solve(self.ksp, self._label)

@@ -1,0 +1,251 @@
+"""The operators of the surface metric R = r (M + β L_Γ) (the 3D default's penalty norm).
+
+ADMM at the paper's penalty r M converges at the rate of the contact pencil
+(NᵀMN, A), whose condition number κ grows like 1/h: the compliance of Γ_C falls from
+its smoothest to its roughest contact mode. Measuring the splitting residual
+p − N u in a norm that *also* grows with roughness,
+
+    ‖q‖²_R = r (qᵀ M q + β qᵀ L_Γ q),    (L_Γ)_ij = ∫_Γc ∇_Γ φ_i · ∇_Γ φ_j ds,
+
+(L_Γ the Laplace–Beltrami stiffness of the contact surface, ∇_Γ the tangential
+gradient) compensates that fall, and ADMM's count stops growing under refinement
+(``python benchmarks/surface_metric.py --part rule`` measures the pencil's condition
+number in both metrics). ADMM with any symmetric positive definite R has the same
+fixed points; its steps in this metric are :mod:`admm_dolfinx.admm.surface_projection`'s.
+
+This module holds the operators: L_Γ (a UFL form with the tangential gradient), the
+sparse matrix P_N of the contact directions, Nᵀ L_Γ N = P_Nᵀ L_Γ P_N (exact, in
+parallel by PETSc: the trace u·n_h of a P1 field is quadratic on a facet, so no UFL
+form would be), and L_Γ on the contact nodes gathered on rank 0 for the step-2 QP.
+The choice of β and r is :mod:`admm_dolfinx.penalty.surface`'s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+import ufl
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
+from petsc4py import PETSc
+from slepc4py import SLEPc
+
+from admm_dolfinx._mpi import RankLayout, gather_csr, run_on_rank0
+from admm_dolfinx.linalg.petsc import PetscOwner
+from admm_dolfinx.problem.contact_problem import ContactProblem
+from admm_dolfinx.problem.contact_set import contact_measure
+
+__all__ = ["SurfaceMetric", "surface_gradient"]
+
+
+def surface_gradient(f: ufl.core.expr.Expr, n: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """The tangential gradient ∇f − (∇f · n) n on a facet with unit normal n."""
+    grad = ufl.grad(f)
+    return grad - ufl.dot(grad, n) * n
+
+
+class SurfaceMetric(PetscOwner):
+    """L_Γ on the contact nodes, Nᵀ L_Γ N on the displacement space, and their layout.
+
+    Args:
+        problem: The contact problem (3D).
+
+    Attributes:
+        normal_stiffness: Nᵀ L_Γ N in V's layout (Dirichlet rows and columns zero).
+        layout: How the contact nodes lie over the ranks (gathered m-vectors: rank order).
+    """
+
+    _petsc_objects = ("surface_stiffness", "normal_map", "normal_stiffness")
+
+    def __init__(self, problem: ContactProblem):
+        self.problem = problem
+        self.surface_stiffness = self.normal_map = self.normal_stiffness = None
+        self._rank0: dict | None = None
+        self._k_max_squared: float | None = None
+        self._work: tuple[PETSc.Vec, PETSc.Vec] | None = None
+        self._force: PETSc.Vec | None = None
+        try:
+            self._build()
+        except BaseException:
+            self.destroy()  # collective: every rank raised alike
+            raise
+
+    def _build(self) -> None:
+        """Assemble L_Γ, P_N and Nᵀ L_Γ N; gather L_Γ on the contact nodes to rank 0."""
+        problem = self.problem
+        comm = problem.comm
+        c = problem.contact
+        Q = c.Q
+        msh = Q.mesh
+        w, v = ufl.TrialFunction(Q), ufl.TestFunction(Q)
+        n = ufl.FacetNormal(msh)
+        ds_c = contact_measure(msh, problem.facet_tags, problem.contact_marker)
+        form = fem.form(ufl.inner(surface_gradient(w, n), surface_gradient(v, n)) * ds_c)
+        #: L_Γ on the scalar space Q (rows of nodes off Γ_C are zero).
+        self.surface_stiffness = fem_petsc.assemble_matrix(form)
+        self.surface_stiffness.assemble()
+
+        # P_N: row q_j (the Q dof of contact node j) holds ñ_j at node j's dofs
+        q_map, v_map = Q.dofmap.index_map, problem.V.dofmap.index_map
+        bs, gdim = problem.V.dofmap.index_map_bs, problem.gdim
+        q0, v0 = q_map.local_range[0], v_map.local_range[0]
+        P = PETSc.Mat().createAIJ(
+            (
+                (q_map.size_local, q_map.size_global),
+                (v_map.size_local * bs, v_map.size_global * bs),
+            ),
+            nnz=(gdim, 0),
+            comm=comm,
+        )
+        rows = (q0 + c.dofs).astype(PETSc.IntType)
+        for j, row in enumerate(rows):
+            cols = ((v0 + c.nodes[j]) * bs + np.arange(gdim)).astype(PETSc.IntType)
+            P.setValues([row], cols, c.free_normals[j], addv=PETSc.InsertMode.INSERT_VALUES)
+        P.assemble()
+        self.normal_map = P
+        self.normal_stiffness = self.surface_stiffness.ptap(P)
+
+        # L_Γ restricted to the contact nodes, gathered on rank 0 in rank order
+        index_set = PETSc.IS().createGeneral(rows, comm=comm)
+        sub = self.surface_stiffness.createSubMatrix(index_set, index_set)
+        csr = sub.getValuesCSR()
+        sub.destroy()
+        index_set.destroy()
+        #: How the contact nodes lie over the ranks (the order of gathered m-vectors).
+        self.layout = RankLayout(comm, c.dofs.size)
+        gathered = gather_csr(comm, csr)
+        masses = self.layout.gather(c.mass)
+
+        def build() -> dict:
+            indptr, indices, data = gathered
+            m = self.layout.total
+            laplacian = PETSc.Mat().createAIJ(
+                (m, m),
+                csr=(indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType), data),
+                comm=PETSc.COMM_SELF,
+            )
+            return {"laplacian": laplacian, "mass": masses}
+
+        def failure(name: str, text: str, _: bool) -> Exception:
+            return RuntimeError(f"Gathering L_Γ on rank 0 failed: {name}: {text}")
+
+        #: L_Γ and M on the contact nodes, on rank 0 (None elsewhere).
+        self._rank0 = run_on_rank0(comm, build, failure, broadcast=False)
+
+    @property
+    def k_max_squared(self) -> float:
+        """k²_max: the largest eigenvalue of L_Γ x = k² M x (SLEPc, rank 0); collective."""
+        if self._k_max_squared is None:
+            self._k_max_squared = run_on_rank0(
+                self.problem.comm,
+                self._largest_surface_eigenvalue,
+                lambda name, text, _: RuntimeError(
+                    f"The largest eigenvalue of the contact surface's Laplacian failed: "
+                    f"{name}: {text}"
+                ),
+            )
+        return self._k_max_squared
+
+    def _largest_surface_eigenvalue(self) -> float:
+        laplacian, mass = self._rank0["laplacian"], self._rank0["mass"]
+        scaled = laplacian.copy()
+        scale = scaled.createVecLeft()
+        scale.array[:] = 1.0 / np.sqrt(mass)
+        scaled.diagonalScale(scale, scale)
+        eps = SLEPc.EPS().create(comm=PETSc.COMM_SELF)
+        try:
+            eps.setOperators(scaled)
+            eps.setProblemType(SLEPc.EPS.ProblemType.HEP)
+            eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
+            eps.setDimensions(nev=1, ncv=min(scaled.getSize()[0], 16))
+            eps.setTolerances(tol=1e-4, max_it=1000)
+            eps.solve()
+            if eps.getConverged() < 1:
+                raise RuntimeError(f"SLEPc reason {eps.getConvergedReason()}")
+            return float(eps.getEigenvalue(0).real)
+        finally:
+            eps.destroy()
+            scaled.destroy()
+            scale.destroy()
+
+    def dense_laplacian(self) -> npt.NDArray[np.float64] | None:
+        """L_Γ on the contact nodes in rank order, dense, on rank 0 (None elsewhere).
+
+        For dense checks of the metric (tests, ``benchmarks/surface_metric.py``).
+        """
+        if self._rank0 is None:
+            return None
+        dense = self._rank0["laplacian"].convert("dense", out=None)
+        try:
+            return dense.getDenseArray().copy()
+        finally:
+            dense.destroy()
+
+    def penalty_matrix(self, beta: float) -> PETSc.Mat:
+        """Nᵀ(M + βL_Γ)N = K + β Nᵀ L_Γ N, in A's sparsity pattern (caller destroys it)."""
+        problem = self.problem
+        matrix = problem.A.duplicate(copy=False)
+        matrix.zeroEntries()
+        matrix.axpy(1.0, problem.K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        matrix.axpy(
+            beta, self.normal_stiffness, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN
+        )
+        return matrix
+
+    def add_surface_force(self, b: PETSc.Vec, q: npt.NDArray[np.float64], scale: float) -> None:
+        """Add ``scale`` · Nᵀ L_Γ q to ``b`` (q at the owned contact nodes); collective."""
+        if self._work is None:
+            self._work = self.surface_stiffness.createVecs()
+            self._force = self.problem.create_vector()
+        q_vec, l_q = self._work
+        q_vec.set(0.0)
+        q_vec.array[self.problem.contact.dofs] = q
+        self.surface_stiffness.mult(q_vec, l_q)
+        self.normal_map.multTranspose(l_q, self._force)
+        b.axpy(scale, self._force)
+
+    def dirichlet_lift(self, out: PETSc.Vec) -> bool:
+        """Set ``out`` = −P_Nᵀ L_Γ d_D, the lifting of β Nᵀ L_Γ N by the Dirichlet values.
+
+        d_D,j = (n_j − ñ_j) · u_D,j is the part of the normal displacement of contact
+        node j that Dirichlet conditions prescribe (zero unless a condition fixes a
+        component of a contact node's normal). Collective.
+
+        Returns:
+            Whether the lifting is non-zero anywhere (else ``out`` is left untouched).
+        """
+        problem, c = self.problem, self.problem.contact
+        bs = problem.V.dofmap.index_map_bs
+        values = problem.create_vector()
+        try:
+            values.set(0.0)
+            fem_petsc.set_bc(values, problem.bcs)
+            u_d = values.array_r.reshape(-1, bs)[c.nodes, : problem.gdim]
+            d = np.einsum("ij,ij->i", u_d, c.normals - c.free_normals)
+        finally:
+            values.destroy()
+        if not problem.comm.allreduce(bool(np.any(d != 0.0)), op=MPI.LOR):
+            return False
+        d_q, l_d = self.surface_stiffness.createVecs()
+        try:
+            d_q.set(0.0)
+            d_q.array[c.dofs] = d
+            self.surface_stiffness.mult(d_q, l_d)
+            self.normal_map.multTranspose(l_d, out)
+            out.scale(-1.0)
+        finally:
+            d_q.destroy()
+            l_d.destroy()
+        return True
+
+    def destroy(self) -> None:
+        """Free the PETSc objects, the rank-0 copy of L_Γ included."""
+        super().destroy()
+        for vec in (*(getattr(self, "_work", None) or ()), getattr(self, "_force", None)):
+            if vec is not None:
+                vec.destroy()
+        self._work = self._force = None
+        if getattr(self, "_rank0", None) is not None:
+            self._rank0["laplacian"].destroy()
+            self._rank0 = None

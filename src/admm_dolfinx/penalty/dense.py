@@ -1,0 +1,158 @@
+"""The contact pencil read off the condensed stiffness S_C: compliance and r*, densely.
+
+With the dense Schur complement S_C of A onto the contact dofs C
+(:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`) and W = Nᵀ M^{½} on C, the
+m × m compliance of Γ_C at penalty r is
+
+    T(r) = Wᵀ (S_C + r K_CC)⁻¹ W = M^{½} N (A + rK)⁻¹ Nᵀ M^{½},
+
+whose eigenvalues are θ = λ / (1 + rλ) for the eigenvalues λ of the contact pencil
+NᵀMN w = λ A w. Active-set polishing (:mod:`admm_dolfinx.admm.polish_dense`) uses T(r) itself;
+r* = 1/sqrt(λ_min λ_max) needs the two ends of its spectrum: LAPACK's symmetric
+eigenvalue solver (values only) gives all of T's at once, to an absolute accuracy
+of ε‖T‖, so λ_min to a relative ε κ: enough for any κ = λ_max/λ_min that double
+precision holds (a thin strip has κ ≈ 1e10). Krylov–Schur is no alternative here: the
+small end of T is a cluster of short-wave modes, and shift-and-invert at 0 did not
+reach 1e-8 in 1000 restarts on such a strip.
+
+The rigid motions that the contact holds (a floating body: θ = 1/r_a) are known from
+the problem (:mod:`admm_dolfinx.problem.rigid_motions`) and deflated, so that no eigenvalue
+is classified by its size: that would confuse them with the smoothest modes of a very
+compliant body.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["RIGID_TOL", "compliance_matrix", "extremes_from_schur"]
+
+#: θ with 1 − r_a θ below this is a rigid motion (λ = ∞).
+RIGID_TOL = 1e-6
+#: r_a λ_max above this: λ = θ/(1 − r_a θ) amplifies θ's error too much; T is formed
+#: again at r_a = 1/λ_max.
+_MAX_RA_LAMBDA = 4.0
+
+
+def _scaled_auxiliary_penalty(schur, k_cc, weights, r_a, smooth, rigid) -> float:
+    """1/λ̃ with λ̃ ≤ λ_max the Ritz value of T(r_a) on the smooth pressures."""
+    V = np.asarray(smooth, dtype=float)
+    if rigid is not None and rigid.size:  # the rigid directions are not a λ
+        q = np.linalg.qr(np.asarray(rigid, dtype=float))[0]
+        V = V - q @ (q.T @ V)
+    V = np.linalg.qr(V)[0]
+    try:
+        lower = np.linalg.cholesky(schur + r_a * k_cc)
+    except np.linalg.LinAlgError:
+        return r_a  # compliance_matrix explains the failure
+    half = np.linalg.solve(lower, weights @ V)
+    theta = float(np.linalg.eigvalsh(half.T @ half)[-1])
+    x = r_a * theta
+    if not 0.0 < x < 1.0:
+        return r_a
+    lam = theta / (1.0 - x)
+    return min(r_a, 1.0 / lam) if r_a * lam > _MAX_RA_LAMBDA else r_a
+
+
+def compliance_matrix(
+    schur: np.ndarray, k_cc: np.ndarray, weights: np.ndarray, r: float
+) -> np.ndarray:
+    """T = Wᵀ (S_C + r K_CC)⁻¹ W, the m × m compliance of Γ_C at penalty r; dense.
+
+    (M^{½} N (A + rK)⁻¹ Nᵀ M^{½}, read off the condensed stiffness.) Its eigenvalues
+    are θ = λ / (1 + rλ) for the eigenvalues λ of the contact pencil.
+
+    Args:
+        schur: S_C, symmetric c × c.
+        k_cc: K = NᵀMN restricted to C × C.
+        weights: W = Nᵀ M^{½} on C, c × m.
+        r: Penalty (> 0).
+
+    Raises:
+        RuntimeError: If S_C + r K_CC is not positive definite.
+    """
+    try:
+        lower = np.linalg.cholesky(schur + r * k_cc)
+    except np.linalg.LinAlgError as error:
+        raise RuntimeError(
+            "The Schur complement of A onto the contact dofs plus r NᵀMN is not "
+            "positive definite: the body has a motion that neither the Dirichlet "
+            "conditions nor Γ_C restrain."
+        ) from error
+    half = np.linalg.solve(lower, weights)  # L⁻¹ W, so that T = (L⁻¹W)ᵀ(L⁻¹W)
+    return half.T @ half
+
+
+def extremes_from_schur(
+    schur: np.ndarray,
+    k_cc: np.ndarray,
+    weights: np.ndarray,
+    rigid: np.ndarray | None = None,
+    smooth: np.ndarray | None = None,
+) -> tuple[float, float, int]:
+    """λ_min, λ_max and the rigid motions seen by Γ_C, densely from S_C; exact.
+
+    The pencil's eigenvalues are θ = λ / (1 + r_a λ) of T(r_a) (see the module
+    docstring); rigid motions give θ = 1/r_a. λ = θ/(1 − r_a θ) loses about r_a λ ulps
+    at λ_max, so r_a is chosen with r_a λ_max ≤ 4, and T is formed again at
+    r_a = 1/λ_max if that did not hold. λ_min keeps its accuracy relative to λ_max,
+    which is what r* needs.
+
+    Args:
+        schur: S_C, symmetric c × c (singular for a floating body).
+        k_cc: K = NᵀMN restricted to C × C.
+        weights: W, c × m.
+        rigid: The rigid directions M^{½} N d of the floating motions d (m × k), known
+            from the problem (:mod:`admm_dolfinx.problem.rigid_motions`): deflated, so that
+            nothing is classified by the size of θ. None: found as θ within
+            :data:`RIGID_TOL` of 1/r_a (a test that needs κ ≪ 1/RIGID_TOL).
+        smooth: Smooth normal pressures on Γ_C in compliance coordinates (m × k, e.g.
+            M^{½} times 1, x, y): their Ritz value bounds λ_max from below and sets
+            the first r_a. None: r_a starts at about 1e-3/λ_min.
+
+    Returns:
+        λ_min, λ_max (over the finite eigenvalues) and the number of rigid motions.
+
+    Raises:
+        RuntimeError: If S_C + r_a K_CC is not positive definite (A_II singular: a
+            motion of the body that Γ_C does not see), every mode is rigid, or LAPACK
+            fails.
+    """
+    r_a = 1e-3 * float(np.trace(schur) / np.trace(k_cc))
+    if smooth is not None:
+        r_a = _scaled_auxiliary_penalty(schur, k_cc, weights, r_a, smooth, rigid)
+    known = rigid is not None
+    complement = None
+    if known and rigid.size:
+        m = weights.shape[1]
+        q = np.linalg.qr(np.asarray(rigid, dtype=float).reshape(m, -1), mode="complete")[0]
+        complement = q[:, rigid.shape[1] :]
+    for _attempt in range(8):
+        compliance = compliance_matrix(schur, k_cc, weights, r_a)
+        finite, n_rigid = _finite_spectrum(compliance, r_a, complement, known)
+        lam_max = finite[-1] / (1.0 - r_a * finite[-1])
+        if r_a * lam_max <= _MAX_RA_LAMBDA:
+            break
+        r_a = 1.0 / lam_max  # the map θ → λ amplified errors: again, better scaled
+    else:  # pragma: no cover - a pathological spectrum
+        raise RuntimeError("could not separate λ_max from the rigid motions")
+    lam_min = finite[0] / (1.0 - r_a * finite[0])
+    return float(lam_min), float(lam_max), int(n_rigid)
+
+
+def _finite_spectrum(
+    compliance: np.ndarray, r_a: float, complement: np.ndarray | None, known: bool
+) -> tuple[np.ndarray, int]:
+    """The finite θ of T (ascending) and the number of rigid ones (LAPACK, values only)."""
+    if complement is not None:
+        compliance = complement.T @ compliance @ complement
+    try:
+        theta = np.linalg.eigvalsh(compliance)
+    except np.linalg.LinAlgError as error:  # pragma: no cover - LAPACK's QR iteration
+        raise RuntimeError(f"LAPACK failed on the dense contact pencil: {error}") from error
+    if known:  # the deflated directions are the rigid ones
+        return theta, 0 if complement is None else complement.shape[0] - complement.shape[1]
+    finite = theta[1.0 - r_a * theta > RIGID_TOL]
+    if finite.size == 0:
+        raise RuntimeError("Every contact mode is a rigid motion of the body.")
+    return finite, theta.size - finite.size

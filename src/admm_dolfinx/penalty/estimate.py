@@ -1,0 +1,312 @@
+"""The automatic penalty r* = 1/sqrt(λ_min λ_max) (Koko 2019, §4–5 and Algorithm 5).
+
+ADMM contracts mode i of the dual error by |1 − rλ_i| / (1 + rλ_i), where λ_i are the
+non-zero eigenvalues of A⁻¹NᵀMN, i.e. of the m × m pencil on the contact dofs
+
+    M w = λ S w,     S = Schur complement of A onto the contact normal dofs,
+
+so the best fixed r balances the two extremes: r* = 1/sqrt(λ_min λ_max). This module
+chooses between two methods and assembles the estimate.
+
+**Dense** (the default in 2D with a MUMPS factorisation): one factorisation of A
+condensed onto the contact dofs (:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`)
+gives the dense Schur complement S_C, from which the whole pencil follows: its ends
+with SLEPc on the dense m × m compliance
+(:func:`~admm_dolfinx.penalty.dense.extremes_from_schur`). r* is exact, and the
+ADMM then solves with the same factorisation, so r* costs only the dense eigenvalue
+problem beyond it.
+
+**Iterative** (3D, where S_C is too large to be dense, or another step-1 solver):
+each extreme is computed as the *largest* eigenvalue of a symmetric operator (the
+large end converges in tens of applications; asking for the small end of the wrong
+operator takes hundreds): an m × m one with SLEPc's Krylov–Schur, or, for λ_max at
+the default tolerance, the full-space pencil with LOBPCG. How, and at which
+tolerance, is described in :mod:`admm_dolfinx.penalty.extremes`.
+
+Factorisations of the whole body, iteratively: none at the default tolerance (the ADMM
+then factorises A + r* NᵀMN once).  At tolerances ≤ 1e-6, Â and A + r_a NᵀMN, which have
+A's sparsity pattern, are factorised in one
+:class:`~admm_dolfinx.linalg.operators.PenalisedOperator` - the one the ADMM then
+refactorises at r* - so the symbolic analysis (ordering) is computed once and each
+costs one numeric factorisation.  :attr:`PenaltyEstimate.solves` counts operator
+applications: substitutions with a factorisation, or AMG V-cycles.
+
+Partition dependence: the dense 2D r* is the same on any number of processes to
+round-off (tested to 1e-10; under MPI the condensed factorisation serves only r*
+and polishing, because PETSc solves with a Schur complement serially only, and the
+ADMM factorises A + r*K). Iteratively, at tolerances ≤ 1e-6, r* is the same on any number of
+processes to round-off (tested to 1e-6 under ``mpiexec -n 2``). At the default
+tolerance the multigrid aggregates depend on the partition, and r* with them, by about
+the error of θ (a few 1e-5 measured; tested ≤ 2e-4 under ``mpiexec -n 2``);
+the ADMM converges to the same solution.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from dolfinx.common import Timer
+from petsc4py import PETSc
+
+from admm_dolfinx._logging import get_logger
+from admm_dolfinx._mpi import RankLayout, run_on_rank0
+from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
+from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.linalg.petsc import unique_prefix
+from admm_dolfinx.penalty.contact_operators import (
+    ContactSpace,
+    SchurOperator,
+    largest_eigenvalue,
+    projected_stiffness,
+)
+from admm_dolfinx.penalty.dense import extremes_from_schur
+from admm_dolfinx.penalty.extremes import (
+    NeedsFactorisation,
+    lambda_max_factorised,
+    lambda_max_multigrid,
+    lambda_min_from_layers,
+)
+from admm_dolfinx.problem.contact_problem import ContactProblem
+
+__all__ = ["DEFAULT_PENALTY_TOL", "PENALTY_METHODS", "PenaltyEstimate", "estimate_penalty"]
+
+logger = get_logger(__name__)
+
+#: Default relative tolerance of the eigenvalue solves. r* needs a few digits only;
+#: see the README for how little it moves r*.
+DEFAULT_PENALTY_TOL = 1e-2
+
+#: Above this eigenvalue tolerance λ_min comes from layers along Γ_C (no factorisation
+#: of the whole body); at or below it, from the exact Schur complement.
+_LOCAL_MAX_TOL = 1e-6
+
+#: ``method`` values of :func:`estimate_penalty`.
+PENALTY_METHODS = ("auto", "dense", "iterative")
+
+
+@dataclass
+class PenaltyEstimate:
+    """Result of :func:`estimate_penalty`.
+
+    Attributes:
+        r: The penalty r* = 1/sqrt(λ_min λ_max).
+        lambda_min: Smallest non-zero eigenvalue of A⁻¹NᵀMN.
+        lambda_max: Largest finite eigenvalue of A⁻¹NᵀMN.
+        solves: Linear solves (operator applications) used by both eigenvalue solves
+            (0 for the dense method, which needs none beyond its factorisation).
+        time: Wall-clock seconds, factorisations included (none when the caller's
+            condensed factorisation was used).
+        details: ``method`` (``"dense"`` or ``"iterative"``), ``rigid_modes``; dense:
+            ``c`` = |C|, ``time_factorization`` (0 if shared), ``time_dense``;
+            iterative: solves and seconds per extreme (``solves_min``, ``time_min``,
+            ``solves_max``, ``time_max``; ``time_multigrid_setup`` when λ_max came
+            from multigrid), the auxiliary r_a.
+    """
+
+    r: float
+    lambda_min: float
+    lambda_max: float
+    solves: int
+    time: float
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain numbers for reports and JSON."""
+        return {
+            "r": self.r,
+            "lambda_min": self.lambda_min,
+            "lambda_max": self.lambda_max,
+            "solves": self.solves,
+            "time": self.time,
+            "rigid_modes": self.details.get("rigid_modes", 0),
+        }
+
+    @property
+    def condition_number(self) -> float:
+        """κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1)."""
+        return self.lambda_max / self.lambda_min
+
+
+def estimate_penalty(
+    problem: ContactProblem,
+    *,
+    tol: float = DEFAULT_PENALTY_TOL,
+    max_it: int = 500,
+    method: str = "auto",
+    operator: PenalisedOperator | CondensedOperator | None = None,
+    petsc_options: dict | None = None,
+    petsc_options_prefix: str | None = None,
+) -> PenaltyEstimate:
+    """Compute r* = 1/sqrt(λ_min λ_max) with SLEPc on the contact dofs; collective.
+
+    Args:
+        problem: The contact problem.
+        tol: Relative tolerance of both eigenvalue solves (SLEPc ``eps_tol``) of the
+            iterative method; the dense one is exact.
+        max_it: Maximum Krylov–Schur restarts.
+        method: ``"dense"`` (from the condensed factorisation: exact, 2D-sized Γ_C),
+            ``"iterative"`` (SLEPc, see the module docstring) or ``"auto"``: dense in
+            2D with a MUMPS factorisation, iterative otherwise.
+        operator: The ADMM's operator, to share factorisations: a
+            :class:`CondensedOperator` (dense method; nothing is factorised here), or
+            a :class:`PenalisedOperator` (iterative method: left factorised at r_a, its
+            symbolic factorisation reused by the ADMM). A private one otherwise.
+        petsc_options: Options of the factorisations (MUMPS Cholesky by default).
+        petsc_options_prefix: Prefix; sub-objects get ``schur_``, ``lmin_``, ``lmax_``.
+
+    Returns:
+        The estimate.
+
+    Raises:
+        ValueError: For a tolerance outside (0, 1), ``max_it`` < 1 or an unknown method.
+        RuntimeError: If an eigenvalue solve does not converge.
+    """
+    if not (0.0 < tol < 1.0):
+        raise ValueError(f"tol must lie in (0, 1), got {tol}.")
+    if isinstance(max_it, bool) or not isinstance(max_it, int | np.integer) or max_it < 1:
+        raise ValueError(f"max_it must be an integer ≥ 1, got {max_it!r}.")
+    if method not in PENALTY_METHODS:
+        raise ValueError(f"method must be one of {PENALTY_METHODS}, got {method!r}.")
+    prefix = petsc_options_prefix or unique_prefix("penalty_")
+    t_start = time.perf_counter()
+    shared_condensed = isinstance(operator, CondensedOperator)
+    if method == "auto":
+        dense = shared_condensed or condensed_factor_applies(problem, petsc_options)
+        method = "dense" if dense else "iterative"
+    if method == "dense":
+        condensed = operator if shared_condensed else None
+        lambda_min, lambda_max, details = _dense_extremes(problem, condensed, prefix, petsc_options)
+        details["tol"] = 0.0
+        return _finish(lambda_min, lambda_max, details, t_start)
+    if shared_condensed:  # the iterative method factorises other matrices: a private one
+        operator = None
+    space = ContactSpace(problem)
+    own_operator = operator is None
+    if operator is None:
+        operator = PenalisedOperator(problem, prefix, petsc_options)
+    schur = None
+    vectors: list[PETSc.Vec] = []
+    details: dict[str, Any] = {"method": "iterative", "tol": tol, "m": space.m}
+    try:
+        # ---- λ_min = 1 / μ_max(M^{-½} S M^{-½})
+        with Timer("admm_dolfinx: r* lambda_min"):
+            t0 = time.perf_counter()
+            start = space.start_vector()
+            vectors.append(start)
+            if tol > _LOCAL_MAX_TOL:
+                mu, its, layers, local_solves = lambda_min_from_layers(
+                    space, tol, max_it, start, prefix, petsc_options, vectors
+                )
+                details.update(layers=layers[0], layer_steps=layers[1], solves_min=local_solves)
+            else:
+                hat = projected_stiffness(problem.A, space.map)
+                operator.load(hat, "the projected stiffness P A P + c NᵀN (Schur complement)")
+                hat.destroy()
+                schur = SchurOperator(space, problem.A, space.map, operator)
+                mu, vec, its = largest_eigenvalue(
+                    space, schur, prefix + "lmin_", tol, max_it, [], start
+                )
+                vectors.append(vec)
+                details.update(layers="all", layer_steps=0, solves_min=operator.solves)
+            lambda_min = 1.0 / mu
+            details.update(time_min=time.perf_counter() - t0, restarts_min=its)
+
+        # ---- λ_max from θ_max, the largest eigenvalue of K x = θ (A + r_a K) x
+        with Timer("admm_dolfinx: r* lambda_max"):
+            t0 = time.perf_counter()
+            info = None
+            if tol > _LOCAL_MAX_TOL:
+                try:
+                    lambda_max, info = lambda_max_multigrid(space, lambda_min, tol, max_it, prefix)
+                except NeedsFactorisation as reason:
+                    logger.info("λ_max by factorisation instead of multigrid: %s", reason)
+            if info is None:
+                lambda_max, info = lambda_max_factorised(
+                    space, operator, lambda_min, tol, max_it, prefix, start
+                )
+            details.update(info, time_max=time.perf_counter() - t0)
+    finally:
+        if schur is not None:
+            schur.free()
+        for vec in vectors:
+            vec.destroy()
+        space.destroy()
+        if own_operator:
+            operator.destroy()
+
+    return _finish(lambda_min, lambda_max, details, t_start)
+
+
+def _dense_extremes(problem, condensed, prefix, petsc_options):
+    """λ_min, λ_max from the condensed factorisation (a private one if None); collective."""
+    own = condensed is None
+    t0 = time.perf_counter()
+    if own:
+        condensed = CondensedOperator(problem, prefix + "schur_", petsc_options)
+    try:
+        t1 = time.perf_counter()
+
+        # the rigid directions M^½ N d of the floating motions, in the weights' node order
+        c = problem.contact
+        layout = RankLayout(problem.comm, c.dofs.size)
+        rigid = layout.gather(problem.rigid_motions.normal_motion * np.sqrt(c.mass))
+        # the affine pressures 1, x, y (, z) on Γ_C, to estimate λ_max
+        smooth = layout.gather(np.vstack([np.ones(c.dofs.size), c.coordinates.T]) * np.sqrt(c.mass))
+
+        def dense() -> tuple[float, float, int]:
+            with Timer("admm_dolfinx: r* dense pencil"):
+                return extremes_from_schur(
+                    condensed.schur,
+                    condensed.k_cc,
+                    condensed.support.weights,
+                    rigid=rigid.T,
+                    smooth=smooth.T,
+                )
+
+        def failure(name: str, text: str, _: bool) -> Exception:
+            if name == "RuntimeError":  # the explained failures of extremes_from_schur
+                return RuntimeError(text)
+            return RuntimeError(f"The dense r* failed on rank 0: {name}: {text}")
+
+        lambda_min, lambda_max, rigid = run_on_rank0(problem.comm, dense, failure)
+        details = {
+            "method": "dense",
+            "m": problem.contact.num_global,
+            "c": condensed.support.size,
+            "rigid_modes": rigid,
+            "solves_min": 0,
+            "solves_max": 0,
+            "time_factorization": t1 - t0 if own else 0.0,
+            "time_dense": time.perf_counter() - t1,
+        }
+    finally:
+        if own:
+            condensed.destroy()
+    return lambda_min, lambda_max, details
+
+
+def _finish(lambda_min, lambda_max, details, t_start) -> PenaltyEstimate:
+    lambda_max = max(lambda_max, lambda_min)
+    r = 1.0 / math.sqrt(lambda_min * lambda_max)
+    estimate = PenaltyEstimate(
+        r=r,
+        lambda_min=lambda_min,
+        lambda_max=lambda_max,
+        solves=details["solves_min"] + details["solves_max"],
+        time=time.perf_counter() - t_start,
+        details=details,
+    )
+    logger.info(
+        "r* = %.6g (λ_min %.4e, λ_max %.4e, κ %.3g) from %d solves in %.3f s",
+        r,
+        lambda_min,
+        lambda_max,
+        estimate.condition_number,
+        estimate.solves,
+        estimate.time,
+    )
+    return estimate

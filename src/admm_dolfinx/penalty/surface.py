@@ -1,0 +1,231 @@
+"""β and r for the surface metric R = r (M + β L_Γ) (:mod:`admm_dolfinx.linalg.surface_metric`).
+
+The paper's rule r* = 1/sqrt(λ_min λ_max) applies to any metric: with μ_min, μ_max
+the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r is
+1/sqrt(μ_min μ_max). The choice here starts from the paper's pencil (NᵀMN, A), whose
+λ_min and λ_max :func:`~admm_dolfinx.penalty.estimate.estimate_penalty` computes anyway:
+
+* **β = κ / k²_max**, κ = λ_max/λ_min, k²_max the largest eigenvalue of
+  L_Γ x = k² M x (the roughest nodal pattern Γ_C carries). The roughest contact
+  mode, of compliance λ_min, then weighs λ_min (1 + κ) = λ_min + λ_max, while the
+  smoothest, whose surface gradient is small, keeps λ_max: the two ends of the
+  paper's spectrum are brought together.
+* **μ_min ≈ λ_max / 2.** The uniform and other smooth contact modes have almost no
+  surface-gradient energy, so their μ is their λ: they cap μ_min at about λ_max.
+  The minimum itself lies a little below, at a mode of intermediate wavelength,
+  where neither term dominates; it is a global mode, as dear to compute as λ_max.
+  Measured with the dense pencil on Example 3 and three variants of it (levels
+  0–2): μ_min / λ_max = 0.41–0.97, so :data:`MU_MIN_FRACTION` = ½ is within a
+  factor 2 of it, and r within √2.
+* **μ_max** belongs to a short-wave mode at the edge of Γ_C, so it is computed like
+  λ_min in :mod:`admm_dolfinx.penalty.extremes`, on a layer of cells along Γ_C with
+  the rest of the body held fixed (stiffer than the body, so a lower bound, which
+  grows to μ_max with the layer): two rings (:data:`LAYER_RINGS`). SLEPc solves the
+  layer's generalised problem Nᵀ(M + βL_Γ)N x = μ A_L x with a factorisation of A_L.
+* **r = 1 / sqrt(½ λ_max μ_max)**: 0.93–1.39 times the best 1/sqrt(μ_min μ_max) on
+  the measured meshes, where ADMM needs at most two iterations more than at the best
+  r (``python benchmarks/surface_metric.py --part rule``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from dolfinx.common import Timer
+from petsc4py import PETSc
+from slepc4py import SLEPc
+
+from admm_dolfinx._logging import get_logger
+from admm_dolfinx._mpi import probe_vector
+from admm_dolfinx.linalg.petsc import apply_options, factor_options, solve_top_eigenpair
+from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.penalty.contact_operators import contact_layer, mean_diagonal
+from admm_dolfinx.penalty.estimate import PenaltyEstimate
+from admm_dolfinx.problem.contact_problem import ContactProblem
+
+__all__ = ["SurfacePenalty", "estimate_surface_penalty"]
+
+logger = get_logger(__name__)
+
+#: Rings of cells of the layer on which μ_max is computed. Its mode is the roughest
+#: pattern at the edge of Γ_C: on every mesh of ``benchmarks/surface_metric.py
+#: --part rule`` two rings give 0.95–1.0 of the whole body's μ_max, which moves r by
+#: at most 2.7 %; r itself is 0.93–1.39 of the best there. Four rings cost more.
+LAYER_RINGS = 2
+#: μ_min / λ_max assumed for r (measured 0.41–0.97: see the module docstring).
+MU_MIN_FRACTION = 0.5
+#: Eigenvalue tolerance of each layer solve.
+EIGEN_TOL = 1e-3
+
+
+@dataclass
+class SurfacePenalty:
+    """β, r and what they came from.
+
+    Attributes:
+        r: The penalty r = 1/sqrt(½ λ_max μ_max).
+        beta: β = κ/k²_max.
+        mu_max: Largest eigenvalue of (Nᵀ(M + βL_Γ)N, A).
+        k_max_squared: Largest eigenvalue of L_Γ x = k² M x.
+        estimate: The paper's pencil's estimate (λ_min, λ_max) that β and r use.
+        time: Seconds for L_Γ, k²_max and μ_max (the paper's estimate excluded).
+        details: ``layers`` (rings of the layer, or "all"), ``restarts`` (of
+            Krylov–Schur).
+    """
+
+    r: float
+    beta: float
+    mu_max: float
+    k_max_squared: float
+    estimate: PenaltyEstimate
+    time: float
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain numbers for reports and JSON."""
+        return {
+            "r": self.r,
+            "beta": self.beta,
+            "mu_max": self.mu_max,
+            "k_max_squared": self.k_max_squared,
+            "lambda_min": self.estimate.lambda_min,
+            "lambda_max": self.estimate.lambda_max,
+            "time": self.time,
+            **self.details,
+        }
+
+
+def estimate_surface_penalty(
+    problem: ContactProblem,
+    metric: SurfaceMetric,
+    estimate: PenaltyEstimate,
+    *,
+    prefix: str,
+    petsc_options: dict | None = None,
+) -> SurfacePenalty:
+    """β and r for the surface metric; collective.
+
+    Args:
+        problem: The contact problem.
+        metric: Its surface metric (L_Γ).
+        estimate: λ_min and λ_max of the paper's pencil
+            (:func:`~admm_dolfinx.penalty.estimate.estimate_penalty`).
+        prefix: Options prefix of the layer eigenvalue solves (``{prefix}eps_*``,
+            ``{prefix}st_*``).
+        petsc_options: Options of the layer factorisations (as for the step-1 solver).
+
+    Returns:
+        The surface penalty.
+
+    Raises:
+        RuntimeError: If a layer eigenvalue solve does not converge.
+    """
+    t0 = time.perf_counter()
+    k2 = metric.k_max_squared
+    if not (math.isfinite(k2) and k2 > 0.0):
+        # no surface gradient on Γ_C (isolated contact nodes): the paper's metric, r*
+        logger.warning("L_Γ vanishes on the contact nodes: β = 0, r = r* (the paper's metric)")
+        return SurfacePenalty(
+            r=estimate.r,
+            beta=0.0,
+            mu_max=estimate.lambda_max,
+            k_max_squared=k2,
+            estimate=estimate,
+            time=time.perf_counter() - t0,
+            details={"layers": 0, "restarts": 0},
+        )
+    with Timer("admm_dolfinx: surface penalty"):
+        beta = estimate.condition_number / k2
+        matrix = metric.penalty_matrix(beta)
+        try:
+            mu_max, details = _largest_on_layer(problem, matrix, prefix, petsc_options)
+        finally:
+            matrix.destroy()
+    r = 1.0 / math.sqrt(MU_MIN_FRACTION * estimate.lambda_max * mu_max)
+    result = SurfacePenalty(
+        r=r,
+        beta=beta,
+        mu_max=mu_max,
+        k_max_squared=k2,
+        estimate=estimate,
+        time=time.perf_counter() - t0,
+        details=details,
+    )
+    logger.info(
+        "surface metric: β = %.4g (κ %.3g, k²_max %.4g), μ_max %.4e, r = %.6g in %.3f s",
+        beta,
+        estimate.condition_number,
+        k2,
+        mu_max,
+        r,
+        result.time,
+    )
+    return result
+
+
+def _largest_on_layer(problem, matrix, prefix, petsc_options):
+    """μ_max of (matrix, A) on a layer of LAYER_RINGS rings of cells along Γ_C."""
+    c = problem.contact
+    bs = problem.V.dofmap.index_map_bs
+    row0 = problem.A.getOwnershipRange()[0]
+    nodes, whole = contact_layer(problem, LAYER_RINGS)
+    dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
+    index_set = stiffness = penalty = start = None
+    try:
+        index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
+        stiffness = problem.A.createSubMatrix(index_set, index_set)
+        penalty = matrix.createSubMatrix(index_set, index_set)
+        start = penalty.createVecRight()
+        # unit diagonal scales: SLEPc's relative residual test is then unit-free
+        a_scale = mean_diagonal(stiffness)
+        b_scale = abs(penalty.getDiagonal().max()[1])
+        stiffness.scale(1.0 / a_scale)
+        penalty.scale(1.0 / b_scale)
+        start.set(0.0)  # N_Fᵀ of a partition-independent pseudo-random normal pattern
+        position = np.searchsorted(nodes, c.nodes)
+        with start as arr:
+            arr.reshape(-1, bs)[position, : problem.gdim] = (
+                c.free_normals * probe_vector(c.coordinates)[:, None]
+            )
+        value, vec, its = _layer_eigenvalue(penalty, stiffness, start, prefix, petsc_options)
+        vec.destroy()
+    finally:
+        for obj in (start, penalty, stiffness, index_set):
+            if obj is not None:
+                obj.destroy()
+    mu = value * b_scale / a_scale
+    return mu, {"layers": "all" if whole else LAYER_RINGS, "restarts": its}
+
+
+def _layer_eigenvalue(penalty, stiffness, start, prefix, petsc_options):
+    """Largest eigenvalue of penalty x = μ stiffness x (SLEPc, factorised stiffness)."""
+    eps = SLEPc.EPS().create(comm=stiffness.getComm())
+    try:
+        eps.setOperators(penalty, stiffness)
+        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
+        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
+        eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
+        eps.setDimensions(nev=1, ncv=16)
+        eps.setTolerances(tol=EIGEN_TOL, max_it=200)
+        st = eps.getST()
+        st.setType(SLEPc.ST.Type.SHIFT)
+        apply_options(
+            st.getKSP(),
+            prefix + "st_",
+            factor_options(petsc_options, 3),
+            what="the layer solver of the surface metric's μ_max",
+        )
+        return solve_top_eigenpair(
+            eps,
+            stiffness.createVecRight,
+            "SLEPc did not converge to the largest eigenvalue of the surface-metric pencil "
+            "on a layer along the contact boundary. Pass penalty_metric='mass'",
+            prefix=prefix,
+            start=[start],
+        )
+    finally:
+        eps.destroy()

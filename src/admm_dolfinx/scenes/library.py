@@ -1,0 +1,614 @@
+"""Named contact scenes: the paper's examples, declared with only what they need.
+
+A scene is the body's mesh with tagged boundary parts, a material, loads, Dirichlet
+conditions and an analytic rigid obstacle (design.md §5).  It knows nothing about
+the solver: :meth:`Scene.problem` hands its data to
+:class:`~admm_dolfinx.ContactProblem`, and from there the data flows one way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import ufl
+from dolfinx import fem, mesh
+from mpi4py import MPI
+
+from admm_dolfinx.problem.contact_problem import ContactProblem
+from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.problem.obstacles import Ball, Obstacle, Plane
+from admm_dolfinx.scenes.meshing import (
+    box,
+    check_lengths,
+    check_level,
+    lower_ball,
+    quarter_disc,
+    rectangle,
+    structured_rectangle,
+)
+
+__all__ = [
+    "SCENES",
+    "Scene",
+    "example1",
+    "example2",
+    "example3",
+    "hertz",
+    "hertz_solution",
+    "hertz_sphere",
+    "hertz_sphere_solution",
+    "pressed_ball",
+    "pressed_block",
+]
+
+
+@dataclass
+class Scene:
+    """A contact scene ready to become a :class:`~admm_dolfinx.ContactProblem`.
+
+    Attributes:
+        name: Short name (``"example1"``, ...).
+        mesh: The body's mesh.
+        facet_tags: Boundary tags; ``markers`` names them.
+        markers: Name → tag value of the boundary parts.
+        material: Linear elastic material.
+        V: P1 vector displacement space.
+        a: Elasticity bilinear form.
+        L: Load linear form.
+        bcs: Dirichlet conditions.
+        contact_marker: Tag of Γ_C.
+        obstacle: The rigid obstacle.
+        h: Nominal mesh size.
+        info: Free-form facts for reports (counts, parameters).
+    """
+
+    name: str
+    mesh: mesh.Mesh
+    facet_tags: mesh.MeshTags
+    markers: dict[str, int]
+    material: LinearElastic
+    V: fem.FunctionSpace
+    a: ufl.Form
+    L: ufl.Form
+    bcs: list[fem.DirichletBC]
+    contact_marker: int
+    obstacle: Obstacle
+    h: float
+    info: dict = field(default_factory=dict)
+
+    def problem(self, **kwargs) -> ContactProblem:
+        """Build the contact problem of this scene (kwargs go to ContactProblem)."""
+        return ContactProblem(
+            self.a,
+            self.L,
+            self.bcs,
+            self.facet_tags,
+            self.contact_marker,
+            self.obstacle,
+            **kwargs,
+        )
+
+    @property
+    def num_nodes(self) -> int:
+        """Global number of mesh nodes."""
+        return self.mesh.geometry.index_map().size_global
+
+
+def example1(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    h: float = 1 / 8,
+    mesher: str = "gmsh",
+    E: float = 2000.0,
+    nu: float = 0.3,
+    traction: float = 10.0,
+    gap: float = 0.01,
+) -> Scene:
+    """Example 1 of the paper: a rectangle pressed onto a rigid foundation.
+
+    Ω = (0, 2) × (0, 1), plane strain, E = 2000, ν = 0.3. Clamped on Γ_D = {0} × (0, 1),
+    a downward traction of 10 on the top side Γ_N = (0, 2) × {1}, candidate contact
+    Γ_C = (0, 2) × {0} with a flat foundation at normalised gap 0.01 below it.
+
+    Args:
+        comm: Communicator.
+        h: Mesh size.
+        mesher: ``"gmsh"`` (unstructured, as in the paper) or ``"builtin"``
+            (DOLFINx structured right-diagonal triangles, 2/h × 1/h squares).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        traction: Magnitude of the downward traction on the top side.
+        gap: Distance from Γ_C to the foundation.
+
+    Returns:
+        The scene.
+    """
+    check_lengths(h=h)
+    tags = {"left": 1, "top": 2, "bottom": 3, "right": 4}
+    if mesher == "gmsh":
+        data = rectangle(comm, (0.0, 0.0), (2.0, 1.0), h, tags)
+        msh, facet_tags = data.mesh, data.facet_tags
+    elif mesher == "builtin":
+        n = round(1.0 / h)
+        msh, facet_tags = structured_rectangle(comm, (0.0, 0.0), (2.0, 1.0), (2 * n, n), tags)
+    else:
+        raise ValueError(f"mesher must be 'gmsh' or 'builtin', got {mesher!r}.")
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    t = fem.Constant(msh, np.array([0.0, -traction]))
+    clamp = fem.locate_dofs_topological(V, 1, facet_tags.find(tags["left"]))
+    bcs = [fem.dirichletbc(np.zeros(2), clamp, V)]
+    return Scene(
+        name="example1",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=bcs,
+        contact_marker=tags["bottom"],
+        obstacle=Plane(point=(0.0, -gap), normal=(0.0, 1.0)),
+        h=h,
+        info={"E": E, "nu": nu, "traction": traction, "gap": gap, "mesher": mesher},
+    )
+
+
+def example2(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 2000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    load: float = 1600.0,
+    spring: float = 0.0,
+) -> Scene:
+    """Example 2 of the paper: the Hertz problem, a cylinder on a rigid foundation.
+
+    The paper's text is not self-consistent (radius 8, yet Γ_C is written
+    x1² + x2² = 16). This package reads it as follows: a cylinder of radius R = 8 rests
+    on the plane y = 0, touching it at the origin; by symmetry only the quarter
+    0 ≤ x ≤ R, 0 ≤ y ≤ R of the disc centred at (0, R) is modelled, with u_x = 0 on
+    the symmetry line x = 0 (Γ_D), a uniform downward traction of total force
+    ``load`` on the top side y = R (through the centre), and Γ_C the quarter arc.
+    Nothing fixes the vertical motion: A is singular (a floating body) and only the
+    contact holds the body, as in the paper.
+
+    Args:
+        comm: Communicator.
+        level: Mesh level 0, 1, 2, ...: the arc gets 34·2^level elements, so the
+            number of contact nodes is about 35, 69, 137, ... (the paper's meshes
+            have 35, 69, 125, 229, 457).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        radius: R.
+        load: Total downward force on the quarter's top side.
+        spring: Stiffness per unit length of springs on the vertical motion of the
+            symmetry line (the paper's "small positive constant on the vertical
+            components of Γ_D"); 0 (the default) leaves the body floating.
+
+    Returns:
+        The scene.
+    """
+    level = check_level("level", level)
+    tags = {"axis": 1, "top": 2, "arc": 3}
+    arc = 0.5 * np.pi * radius
+    h_contact = arc / (34 * 2**level)
+    data = quarter_disc(comm, radius, 1.1 * h_contact, h_contact, tags)
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    t = fem.Constant(msh, np.array([0.0, -load / radius]))
+    axis = fem.locate_dofs_topological(V.sub(0), 1, facet_tags.find(tags["axis"]))
+    bcs = [fem.dirichletbc(0.0, axis, V.sub(0))]
+    a = material.bilinear_form(u, v)
+    if spring > 0.0:
+        a = a + spring * u[1] * v[1] * ds(tags["axis"])
+    return Scene(
+        name="example2",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=a,
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=bcs,
+        contact_marker=tags["arc"],
+        obstacle=Plane(point=(0.0, 0.0), normal=(0.0, 1.0)),
+        h=h_contact,
+        info={"E": E, "nu": nu, "radius": radius, "load": load, "level": level, "spring": spring},
+    )
+
+
+def example3(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 1e6,
+    nu: float = 0.45,
+    displacement: float = 0.2,
+    h_bottom: float = 0.3,
+    h_top: float = 0.28,
+) -> Scene:
+    """Example 3 of the paper: a block pressed onto a rigid half-ball.
+
+    Ω = (−0.5, 0.5) × (−1, 1) × (−0.5, 0.5), E = 10⁶, ν = 0.45. The top face is moved
+    by u_D = (0, 0, −0.2); the bottom face z = −0.5 is Γ_C; the obstacle is the ball of
+    radius 0.5 centred at (−0.3, 0, −1), which touches Γ_C at (−0.3, 0, −0.5).
+
+    Args:
+        comm: Communicator.
+        level: 0 is a graded gmsh mesh of about 200 nodes and 44 contact nodes (the
+            paper's has 198/45); each level splits every tetrahedron into 8 (about
+            1.1k/169, 7.4k/625, 52k/2.4k nodes; the paper's: 1289/153, 9245/603,
+            69897/2341).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        displacement: Downward displacement of the top face.
+        h_bottom: Element size of the level-0 mesh on Γ_C.
+        h_top: Element size of the level-0 mesh on the top face.
+
+    Returns:
+        The scene.
+    """
+    level = check_level("level", level)
+    return pressed_block(
+        comm,
+        name="example3",
+        level=level,
+        half_depth=0.5,
+        h_bottom=h_bottom,
+        h_top=h_top,
+        displacement=displacement,
+        obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
+        E=E,
+        nu=nu,
+    )
+
+
+def pressed_block(
+    comm: MPI.Comm,
+    *,
+    name: str,
+    level: int,
+    half_depth: float,
+    h_bottom: float,
+    h_top: float,
+    displacement: float,
+    obstacle: Obstacle,
+    E: float = 1e6,
+    nu: float = 0.45,
+    clamp_sides: bool = False,
+) -> Scene:
+    """Example 3's block (−0.5, 0.5) × (−1, 1) × (−d, d), its top face moved down.
+
+    The top face is moved by u_D = (0, 0, −displacement) (with ``clamp_sides`` the
+    side faces too); the bottom face z = −d is Γ_C, above ``obstacle``.
+
+    Args:
+        comm: Communicator.
+        name: The scene's name.
+        level: Uniform refinements of the graded level-0 mesh.
+        half_depth: d.
+        h_bottom: Element size of the level-0 mesh on Γ_C.
+        h_top: Element size of the level-0 mesh on the top face.
+        displacement: Downward displacement of the top face.
+        obstacle: The rigid obstacle under Γ_C.
+        E: Young's modulus.
+        nu: Poisson ratio.
+        clamp_sides: Prescribe u_D on the side faces as well, so that Γ_C meets a
+            Dirichlet boundary.
+
+    Returns:
+        The scene.
+    """
+    tags = {"bottom": 3, "top": 1, "sides": 4}
+    lower, upper = (-0.5, -1.0, -half_depth), (0.5, 1.0, half_depth)
+    data = box(comm, lower, upper, h_bottom, h_top, level, tags)
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    zero = fem.Constant(msh, np.zeros(3))
+    held = facet_tags.find(tags["top"])
+    if clamp_sides:
+        held = np.concatenate([held, facet_tags.find(tags["sides"])])
+    dofs = fem.locate_dofs_topological(V, 2, held)
+    bcs = [fem.dirichletbc(np.array([0.0, 0.0, -displacement]), dofs, V)]
+    return Scene(
+        name=name,
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(zero, v) * ufl.dx,
+        bcs=bcs,
+        contact_marker=tags["bottom"],
+        obstacle=obstacle,
+        h=h_bottom / 2**level,
+        info={"E": E, "nu": nu, "displacement": displacement, "level": level},
+    )
+
+
+def hertz_solution(load: float, radius: float, E: float, nu: float) -> tuple[float, float]:
+    """Hertz's plane-strain solution for a cylinder on a rigid plane.
+
+    A cylinder of radius R pressed by a force P per unit length onto a rigid flat
+    touches it over |x| ≤ a with the pressure p(x) = p0 sqrt(1 − x²/a²), where
+    a = sqrt(4PR / (π E*)), p0 = 2P / (π a) and E* = E / (1 − ν²).
+
+    Args:
+        load: P, force per unit length on the whole cylinder.
+        radius: R.
+        E: Young's modulus.
+        nu: Poisson ratio.
+
+    Returns:
+        (a, p0).
+    """
+    e_star = E / (1.0 - nu**2)
+    a = float(np.sqrt(4.0 * load * radius / (np.pi * e_star)))
+    return a, 2.0 * load / (np.pi * a)
+
+
+def hertz(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 2000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    half_width: float = 0.6,
+) -> Scene:
+    """A cylinder on a rigid plane under a small load: Hertz's solution applies.
+
+    The quarter cylinder of :func:`example2` with the load chosen so that the Hertz
+    contact half-width is ``half_width`` (≤ R/10: small strains), and a mesh refined
+    around the contact point: the element size there is a/4 / 2^level.
+
+    Args:
+        comm: Communicator.
+        level: Refinement level (each halves the contact element size).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        radius: R.
+        half_width: The Hertz half-width a that the load is chosen to produce.
+
+    Returns:
+        The scene; ``info`` holds the analytic ``a`` and ``p0``.
+    """
+    level = check_level("level", level)
+    e_star = E / (1.0 - nu**2)
+    total = half_width**2 * np.pi * e_star / (4.0 * radius)  # P on the whole cylinder
+    h_contact = half_width / 4.0 / 2**level
+    tags = {"axis": 1, "top": 2, "arc": 3}
+    data = quarter_disc(comm, radius, 0.6, h_contact, tags, refine_radius=1.5 * half_width)
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    t = fem.Constant(msh, np.array([0.0, -0.5 * total / radius]))  # half on the quarter
+    axis = fem.locate_dofs_topological(V.sub(0), 1, facet_tags.find(tags["axis"]))
+    a_exact, p0 = hertz_solution(total, radius, E, nu)
+    return Scene(
+        name="hertz",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=[fem.dirichletbc(0.0, axis, V.sub(0))],
+        contact_marker=tags["arc"],
+        obstacle=Plane(point=(0.0, 0.0), normal=(0.0, 1.0)),
+        h=h_contact,
+        info={
+            "E": E,
+            "nu": nu,
+            "radius": radius,
+            "load": total,
+            "level": level,
+            "a": a_exact,
+            "p0": p0,
+        },
+    )
+
+
+def pressed_ball(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    gdim: int = 2,
+    radius: float = 1.0,
+    gap: float = 0.02,
+    push: float = 0.08,
+    h: float | None = None,
+    h_contact: float | None = None,
+    E: float = 1.0,
+    nu: float = 0.3,
+) -> Scene:
+    """A half-disc (2D) or half-ball (3D) pressed far onto a rigid plane.
+
+    The lower half of a disc or ball of radius R, centred at height R + ``gap`` above
+    the plane x_gdim = 0; its flat top (through the centre) is moved down by ``push``
+    (4× the gap by default), so that the contact zone spans a wide angle: with the
+    defaults its half-width exceeds R/3. The case that separates the two contact models
+    (:mod:`admm_dolfinx.problem.obstacles`): along the body's normal, nodes far from the lowest
+    point sink below the plane.
+
+    Args:
+        comm: Communicator.
+        gdim: 2 or 3.
+        radius: R.
+        gap: Initial distance of the lowest point from the plane.
+        push: Downward displacement of the flat top.
+        h: Element size away from the contact zone (default R/8 in 2D, R/4 in 3D).
+        h_contact: Element size in the contact zone (default R/40 in 2D, R/10 in 3D).
+        E: Young's modulus.
+        nu: Poisson ratio.
+
+    Returns:
+        The scene; ``info`` holds the expected half-width of the flattened zone.
+    """
+    check_lengths(radius=radius, push=push)
+    h = h or radius / (8 if gdim == 2 else 4)
+    h_contact = h_contact or radius / (40 if gdim == 2 else 10)
+    tags = {"top": 1, "surface": 2}
+    data = lower_ball(comm, gdim, radius, h, h_contact, tags, refine_radius=0.7 * radius)
+    msh, facet_tags = data.mesh, data.facet_tags
+    msh.geometry.x[:, gdim - 1] += gap
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (gdim,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    down = np.zeros(gdim)
+    down[-1] = -push
+    top = fem.locate_dofs_topological(V, gdim - 1, facet_tags.find(tags["top"]))
+    normal = np.zeros(gdim)
+    normal[-1] = 1.0
+    overlap = push - gap
+    return Scene(
+        name="pressed_ball",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(fem.Constant(msh, np.zeros(gdim)), v) * ufl.dx,
+        bcs=[fem.dirichletbc(down, top, V)],
+        contact_marker=tags["surface"],
+        obstacle=Plane(point=np.zeros(gdim), normal=normal),
+        h=h_contact,
+        info={
+            "E": E,
+            "nu": nu,
+            "radius": radius,
+            "gap": gap,
+            "push": push,
+            "overlap half-width": float(np.sqrt(2.0 * radius * overlap - overlap**2)),
+        },
+    )
+
+
+def hertz_sphere_solution(load: float, radius: float, E: float, nu: float) -> tuple[float, float]:
+    """Hertz's solution for a sphere on a rigid plane: (a, p0) for a total force F.
+
+    a = (3 F R / (4 E*))^{1/3}, p0 = 3 F / (2 π a²), E* = E / (1 − ν²); the pressure is
+    p(r) = p0 sqrt(1 − r²/a²) on r ≤ a.
+    """
+    e_star = E / (1.0 - nu**2)
+    a = float((3.0 * load * radius / (4.0 * e_star)) ** (1.0 / 3.0))
+    return a, 3.0 * load / (2.0 * np.pi * a**2)
+
+
+def hertz_sphere(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    E: float = 1000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    half_width: float = 0.4,
+    h_far: float = 0.1,
+    refine: float = 1.5,
+) -> Scene:
+    """A sphere on a rigid plane under a small load (3D Hertz), by symmetry a quarter.
+
+    The lower quarter-hemisphere (x ≥ 0, y ≥ 0) of a ball of radius R resting on the
+    plane z = 0, with u_x = 0 on x = 0 and u_y = 0 on y = 0 and a uniform downward
+    traction on its flat top chosen so that Hertz's contact radius is ``half_width``
+    (R/20 by default: small strains, and a body large against the contact zone).
+    Nothing holds the vertical motion but the contact (a floating body, like the
+    paper's cylinder). The mesh is refined around the contact
+    point: the element size there is a/3 / 2^level.
+
+    Args:
+        comm: Communicator.
+        level: Refinement level (each halves the contact element size).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        radius: R.
+        half_width: The Hertz contact radius a that the load is chosen to produce.
+        h_far: Element size away from the contact zone, relative to R.
+        refine: Radius of the refined zone around the contact point, relative to a.
+
+    Returns:
+        The scene; ``info`` holds the analytic ``a``, ``p0`` and the total ``load`` F.
+    """
+    level = check_level("level", level)
+    e_star = E / (1.0 - nu**2)
+    total = 4.0 * e_star * half_width**3 / (3.0 * radius)  # F for a = half_width
+    h_contact = half_width / 3.0 / 2**level
+    tags = {"top": 1, "surface": 2, "sym_x": 3, "sym_y": 4}
+    data = lower_ball(
+        comm,
+        3,
+        radius,
+        h_far * radius,
+        h_contact,
+        tags,
+        refine_radius=refine * half_width,
+        quarter=True,
+    )
+    msh, facet_tags = data.mesh, data.facet_tags
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=facet_tags)
+    # F/4 on the quarter's top face, over its discrete area (a polygon, not πR²/4)
+    area = msh.comm.allreduce(
+        fem.assemble_scalar(fem.form(fem.Constant(msh, 1.0) * ds(tags["top"]))), op=MPI.SUM
+    )
+    t = fem.Constant(msh, np.array([0.0, 0.0, -0.25 * total / area]))
+    bcs = [
+        fem.dirichletbc(
+            0.0, fem.locate_dofs_topological(V.sub(i), 2, facet_tags.find(tags[name])), V.sub(i)
+        )
+        for i, name in ((0, "sym_x"), (1, "sym_y"))
+    ]
+    a_exact, p0 = hertz_sphere_solution(total, radius, E, nu)
+    return Scene(
+        name="hertz_sphere",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(t, v) * ds(tags["top"]),
+        bcs=bcs,
+        contact_marker=tags["surface"],
+        obstacle=Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)),
+        h=h_contact,
+        info={
+            "E": E,
+            "nu": nu,
+            "radius": radius,
+            "load": total,
+            "level": level,
+            "a": a_exact,
+            "p0": p0,
+            "quarter": True,
+        },
+    )
+
+
+#: Scene builders by name.
+SCENES = {
+    "example1": example1,
+    "example2": example2,
+    "example3": example3,
+    "hertz": hertz,
+    "hertz_sphere": hertz_sphere,
+}

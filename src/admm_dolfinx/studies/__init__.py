@@ -1,0 +1,1 @@
+"""Studies around the solver: penalty sweeps, reference solvers, the paper's tables, Hertz."""

@@ -1,0 +1,214 @@
+"""Active-set polishing against independent answers: SNES VI, tight unpolished ADMM, KKT.
+
+Runs serially and under ``mpiexec -n 2`` (there the polisher reads S_C from a private
+condensed factorisation and the ADMM solves with a factorisation of A + r*K).
+"""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import admm_dolfinx.admm.polish_dense as polish_module
+from admm_dolfinx import ADMMSolver
+from admm_dolfinx.scenes.library import example1, example2, example3
+from admm_dolfinx.studies.baselines import solve_snes_vi
+
+from conftest import rel_diff
+
+
+def _global(problem, local):
+    return np.concatenate(problem.comm.allgather(np.asarray(local)))
+
+
+@pytest.mark.parametrize("h", [1 / 16, 1 / 32])
+def test_polished_solution_matches_snes_vi(h):
+    problem = example1(h=h).problem()
+    with ADMMSolver(problem, polish=False) as solver:
+        plain = solver.solve()
+    with ADMMSolver(problem) as solver:  # the default polishes in 2D
+        assert solver.polish
+        result = solver.solve()
+    ref = solve_snes_vi(problem)
+    info = result.extra["polish"]
+    assert info["polished_at"] == result.iterations  # the polished state met the test
+    assert result.polished and not plain.polished
+    assert result.history["accelerated"][-1] == 2
+    assert result.iterations < plain.iterations
+    # exact, not merely within the stopping tolerance (1e-6)
+    assert result.kkt.max() <= 1e-10
+    assert rel_diff(_global(problem, result.u.x.array), _global(problem, ref.u.x.array)) <= 1e-9
+    assert rel_diff(_global(problem, result.multiplier), _global(problem, ref.multiplier)) <= 1e-8
+
+
+def test_polish_on_a_floating_curved_body():
+    """Hertz: curved Γ_C (two dofs per contact node in C), held by contact alone."""
+    problem = example2(level=1).problem()
+    with ADMMSolver(problem, polish=False, rtol=1e-11, max_iter=3000) as solver:
+        tight = solver.solve()
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+    assert result.extra["polish"]["polished_at"] == result.iterations
+    assert result.kkt.max() <= 1e-10
+    assert rel_diff(_global(problem, result.u.x.array), _global(problem, tight.u.x.array)) <= 1e-8
+    assert rel_diff(_global(problem, result.multiplier), _global(problem, tight.multiplier)) <= 1e-8
+
+
+def _one_step(solver):
+    """(N u, q) of one step-1 solve from p = min(0, g), λ = 0."""
+    problem = solver.problem
+    r = solver.penalty
+    b, x = problem.create_vector(), problem.create_vector()
+    problem.assemble_rhs(r, b)
+    q = r * np.minimum(0.0, problem.contact.gap)
+    problem.add_normal_force(b, q)
+    solver.operator.solve(b, x)
+    normal_u = problem.apply_normal(x)
+    b.destroy()
+    x.destroy()
+    return normal_u, q
+
+
+def test_attempt_gives_the_exact_state_from_the_true_active_set():
+    problem = example1(h=1 / 16).problem()
+    ref = solve_snes_vi(problem)
+    true_active = ref.multiplier > 1e-8 * np.max(_global(problem, ref.multiplier))
+    with ADMMSolver(problem) as solver:
+        polisher = solver.polisher
+        polisher.reset()
+        normal_u, q = _one_step(solver)
+        exact = polisher.attempt(normal_u, q, true_active)
+        assert exact is not None
+        p, lam = exact
+        p_ref = np.minimum(problem.apply_normal(ref.u.x.petsc_vec), problem.contact.gap)
+        assert rel_diff(_global(problem, lam), _global(problem, ref.multiplier)) <= 1e-8
+        assert rel_diff(_global(problem, p), _global(problem, p_ref)) <= 1e-8
+        # the outcome depends on the guess alone: a guess tried before is not retried
+        rounds = polisher.rounds
+        assert polisher.attempt(normal_u, q, true_active) is None
+        assert polisher.rounds == rounds
+        # every node active: λ < 0 where the body lifts off; the corrections drop them
+        everything = polisher.attempt(normal_u, q, np.ones_like(true_active))
+        if everything is not None:
+            assert rel_diff(_global(problem, everything[1]), _global(problem, lam)) <= 1e-10
+        # no guess: the corrections start from the unconstrained solution
+        empty = polisher.attempt(normal_u, q, np.zeros_like(true_active))
+        if empty is not None:
+            assert rel_diff(_global(problem, empty[1]), _global(problem, lam)) <= 1e-10
+        # out of time: skipped, not tried
+        polisher.reset()
+        assert polisher.attempt(normal_u, q, true_active, budget=-1.0) is None
+        assert (polisher.skipped, polisher.attempts, polisher.rounds) == (1, 0, 0)
+        assert polisher.attempt(normal_u, q, true_active) is not None
+
+
+def test_failed_attempts_leave_the_iteration_converging(monkeypatch):
+    """One dense solve per guess, no correction: the ADMM carries on until one works."""
+    problem = example1(h=1 / 32).problem()
+    with ADMMSolver(problem) as solver:
+        default = solver.solve()
+        monkeypatch.setattr(polish_module, "MAX_ROUNDS", 1)
+        result = solver.solve()
+    assert result.extra["polish"]["attempts"] >= 2
+    assert result.kkt.max() <= 1e-6
+    assert rel_diff(_global(problem, result.u.x.array), _global(problem, default.u.x.array)) <= 1e-6
+
+
+def test_an_error_in_the_dense_work_switches_polishing_off_on_every_rank(monkeypatch, caplog):
+    """The dense work runs on rank 0 alone: an exception there (here planted in the
+    compliance, then in an attempt) is a warning and an unpolished solve, on every
+    rank alike, never a rank that raises while the others wait."""
+    problem = example1(h=1 / 32).problem()
+    with ADMMSolver(problem, polish=False) as solver:
+        plain = solver.solve()
+
+    def fail(*args, **kwargs):
+        raise MemoryError("planted")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(polish_module, "compliance_matrix", fail)
+        with ADMMSolver(problem) as solver, caplog.at_level("WARNING"):
+            result = solver.solve()
+    assert not result.polished and result.extra["polish"]["attempts"] == 0
+    assert result.iterations == plain.iterations  # the plain iteration, untouched
+    with monkeypatch.context() as patch:
+        patch.setattr(polish_module.ActiveSetPolish, "_solve", fail)
+        with ADMMSolver(problem) as solver, caplog.at_level("WARNING"):
+            result = solver.solve()
+    assert not result.polished and result.extra["polish"]["attempts"] > 0
+    assert result.converged and result.kkt.max() <= 1e-6
+    if problem.comm.rank == 0:
+        assert "MemoryError: planted" in caplog.text
+
+
+def test_polish_options():
+    problem = example1(h=1 / 8).problem()
+    with ADMMSolver(problem, mode="paper") as solver:
+        assert solver.polisher is None
+        result = solver.solve()
+    assert result.settings["polish"] is False and result.extra["polish"] is None
+    assert 2 not in result.history["accelerated"]
+    with ADMMSolver(problem, penalty=3000.0) as solver:  # no S_C at hand: off by default
+        assert solver.polisher is None
+    with ADMMSolver(problem, penalty=3000.0, polish=True) as solver:
+        assert solver.solve().extra["polish"]["polished_at"] is not None
+    with pytest.raises(TypeError, match="polish must be None"):
+        ADMMSolver(problem, polish="yes")
+    with pytest.raises(ValueError, match="polish=True needs the Schur complement"):
+        ADMMSolver(problem, polish=True, petsc_options={"ksp_type": "cg", "pc_type": "gamg"})
+
+
+def test_polish_in_3d_on_request():
+    """3D: off by default (S_C of a surface costs more than it saves); on request exact."""
+    problem = example3(level=0).problem()
+    with ADMMSolver(problem, rtol=1e-11) as solver:
+        assert solver.polisher is None
+        default = solver.solve()
+    with ADMMSolver(problem, polish=True) as solver:
+        result = solver.solve()
+    assert result.extra["polish"]["polished_at"] == result.iterations
+    assert result.kkt.max() <= 1e-10
+    assert rel_diff(_global(problem, result.u.x.array), _global(problem, default.u.x.array)) <= 1e-9
+    assert MPI.COMM_WORLD.allreduce(result.multiplier.size) == problem.num_contact_nodes
+
+
+def test_polish_with_prescribed_tangential_displacement_on_a_curved_contact_boundary():
+    """u_x = 0.003 prescribed on a curved Γ_C: the fixed part of each normal moves the
+    node towards the obstacle by a known amount, which the polished system must carry."""
+    import ufl
+    from dolfinx import fem, mesh
+
+    from admm_dolfinx import ContactProblem, Plane
+
+    comm = MPI.COMM_WORLD
+    msh = mesh.create_rectangle(comm, [[0, 0], [2, 1]], [24, 12])
+    x = msh.geometry.x
+    x[:, 1] += 0.2 * (x[:, 0] - 1.0) ** 2 * (1.0 - x[:, 1])  # bottom y = 0.2 (x − 1)²
+    bottom = mesh.locate_entities_boundary(
+        msh, 1, lambda p: np.isclose(p[1], 0.2 * (p[0] - 1.0) ** 2)
+    )
+    top = mesh.locate_entities_boundary(msh, 1, lambda p: np.isclose(p[1], 1.0))
+    facets = np.concatenate([bottom, top])
+    values = np.concatenate([np.full(bottom.size, 3), np.full(top.size, 2)]).astype(np.int32)
+    order = np.argsort(facets)
+    tags = mesh.meshtags(msh, 1, facets[order], values[order])
+    V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    mu, lmbda = 2000.0 / 2.6, 2000.0 * 0.3 / (1.3 * 0.4)
+    eps = ufl.sym(ufl.grad(u))
+    a = ufl.inner(2 * mu * eps + lmbda * ufl.tr(eps) * ufl.Identity(2), ufl.sym(ufl.grad(v)))
+    ds = ufl.Measure("ds", domain=msh, subdomain_data=tags)
+    L = ufl.dot(fem.Constant(msh, (0.0, -20.0)), v) * ds(2)
+    V0 = V.sub(0)
+    V0c, _ = V0.collapse()
+    shift = fem.Function(V0c)
+    shift.x.array[:] = 0.003
+    bc = fem.dirichletbc(shift, fem.locate_dofs_topological((V0, V0c), 1, bottom), V0)
+    problem = ContactProblem(a * ufl.dx, L, [bc], tags, 3, Plane((0.0, -0.002), (0.0, 1.0)))
+    with ADMMSolver(problem, polish=False, rtol=1e-11, max_iter=5000) as solver:
+        tight = solver.solve()
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+    assert result.polished and 0 < result.num_active < problem.num_contact_nodes
+    assert result.kkt.max() <= 1e-10
+    assert rel_diff(_global(problem, result.u.x.array), _global(problem, tight.u.x.array)) <= 1e-9
+    assert rel_diff(_global(problem, result.multiplier), _global(problem, tight.multiplier)) <= 1e-8

@@ -1,0 +1,339 @@
+"""r* against a dense reference (numpy/scipy), floating bodies, and factorisation reuse."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from admm_dolfinx import ADMMSolver, estimate_penalty
+from admm_dolfinx.scenes.library import example1, example2, example3
+
+from dense_reference import algorithm5_eigenvalues, rotated_pencil_eigenvalues
+
+serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="dense reference is serial")
+
+TIGHT = 1e-10
+
+
+def _compare(est, lmin, lmax, rel):
+    r_ref = 1.0 / np.sqrt(lmin * lmax)
+    assert est.lambda_min == pytest.approx(lmin, rel=rel)
+    assert est.lambda_max == pytest.approx(lmax, rel=rel)
+    assert est.r == pytest.approx(r_ref, rel=rel)
+
+
+@serial_only
+@pytest.mark.parametrize("h", [1 / 8, 1 / 16, 1 / 32, 1 / 64])
+def test_example1_against_algorithm5(h):
+    problem = example1(h=h).problem()
+    ev = algorithm5_eigenvalues(problem)
+    assert ev.size == problem.num_contact_nodes
+    dense = estimate_penalty(problem)  # 2D default: dense, from the condensed factorisation
+    assert dense.details["method"] == "dense"
+    _compare(dense, ev[0], ev[-1], 1e-9)
+    _compare(estimate_penalty(problem, tol=TIGHT, method="iterative"), ev[0], ev[-1], 1e-6)
+    loose = estimate_penalty(problem, method="iterative")  # default tolerance
+    _compare(loose, ev[0], ev[-1], 0.05)
+    assert loose.solves < 60
+
+
+@serial_only
+@pytest.mark.parametrize("level", [0, 1])
+def test_example3_against_algorithm5(level):
+    problem = example3(level=level).problem(contact_normal="body")
+    ev = algorithm5_eigenvalues(problem)
+    _compare(estimate_penalty(problem, tol=TIGHT), ev[0], ev[-1], 1e-6)
+    loose = estimate_penalty(problem)
+    _compare(loose, ev[0], ev[-1], 0.05)
+    # λ_max by multigrid, LOBPCG started near the top eigenvector (trial responses from
+    # CG steps): level 1 took 11 iterations from one-V-cycle responses, now 3
+    assert loose.details["lambda_max_method"] == "multigrid"
+    assert loose.details["lobpcg_iterations"] <= 6
+
+
+@serial_only
+def test_rotated_reference_agrees_with_algorithm5():
+    """The general (rotated) dense reference reproduces the literal Algorithm 5."""
+    problem = example1(h=1 / 8).problem()
+    np.testing.assert_allclose(
+        rotated_pencil_eigenvalues(problem), algorithm5_eigenvalues(problem), rtol=1e-9
+    )
+
+
+@serial_only
+@pytest.mark.parametrize("level", [0, 1])
+def test_floating_curved_body(level):
+    """Hertz quarter cylinder: curved Γ_C and a free vertical translation (A singular)."""
+    problem = example2(level=level).problem()
+    lam = rotated_pencil_eigenvalues(problem)
+    assert np.isinf(lam[-1]) and np.isfinite(lam[-2])  # exactly one rigid mode seen by Γ_C
+    dense = estimate_penalty(problem)
+    assert dense.details["method"] == "dense" and dense.details["rigid_modes"] == 1
+    _compare(dense, lam[0], lam[-2], 1e-9)
+    assert problem.rigid_motions.floating == 1  # what the dense r* deflates
+    est = estimate_penalty(problem, tol=TIGHT, method="iterative")
+    assert est.details["rigid_modes"] == 1
+    _compare(est, lam[0], lam[-2], 1e-6)
+    loose = estimate_penalty(problem, method="iterative")
+    _compare(loose, lam[0], lam[-2], 0.05)
+    # the multigrid λ_max does not apply to a floating body: it falls back, and says so
+    assert loose.details["lambda_max_method"] == "factorised"
+    # and the ADMM converges at that r, held only by the contact
+    with ADMMSolver(problem, penalty=est.r) as solver:
+        result = solver.solve()
+    assert result.kkt.max() < 1e-4
+    assert result.num_active > 0
+
+
+def _cholesky_counts():
+    sym, num = PETSc.Log.Event("MatCholFctrSym"), PETSc.Log.Event("MatCholFctrNum")
+    return sym.getPerfInfo()["count"], num.getPerfInfo()["count"]
+
+
+def test_auto_penalty_2d_factorises_the_body_once():
+    """2D, one process: one sparse factorisation (A condensed onto Γ_C) gives r* and
+    serves every ADMM step at r*; under MPI the ADMM factorises A + r*K besides."""
+    problem = example1(h=1 / 16).problem()
+    sym0, num0 = _cholesky_counts()
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+        estimate = solver.penalty_estimate
+        operator = type(solver.operator).__name__
+    sym1, num1 = _cholesky_counts()
+    assert estimate.details["method"] == "dense" and result.penalty == estimate.r
+    serial = problem.comm.size == 1
+    assert operator == ("CondensedOperator" if serial else "PenalisedOperator")
+    assert (sym1 - sym0, num1 - num0) == ((1, 1) if serial else (2, 2))
+    if serial:
+        assert result.timings["penalty"] == estimate.time
+    else:  # the condensed factorisation that serves r* (and polishing) is r*'s cost
+        assert result.timings["penalty"] > estimate.time
+
+
+@pytest.mark.parametrize("metric", ["mass", "surface"])
+@pytest.mark.parametrize("tol", [1e-2, 1e-8])
+def test_auto_penalty_shares_one_symbolic_factorisation(tol, metric):
+    """3D (iterative r*), counted from PETSc's log (Cholesky events): the whole body is
+    analysed once. At loose tolerance it is factorised once, at r* (λ_max by
+    multigrid; each layer along Γ_C adds one small factorisation); at tight tolerance
+    also at r_a and for the exact Schur complement. The surface metric (the 3D
+    default) adds one small factorisation per layer of its μ_max and one of the
+    surface QP per change of the contact set (rank 0), and factorises the body at its
+    own r, with the same symbolic analysis."""
+    problem = example3(level=0).problem(contact_normal="body")
+    sym0, num0 = _cholesky_counts()
+    with ADMMSolver(problem, penalty_tol=tol, penalty_metric=metric) as solver:
+        result = solver.solve()
+        estimate = solver.penalty_estimate
+        surface = solver.surface_penalty
+    sym1, num1 = _cholesky_counts()
+    assert estimate is not None and estimate.details["method"] == "iterative"
+    assert (surface is not None) == (metric == "surface")
+    assert result.penalty == (estimate.r if surface is None else surface.r)
+    steps = estimate.details["layer_steps"]
+    extra = 1 if surface else 0  # the layer of μ_max
+    if surface and problem.comm.rank == 0:  # step 2's QP: sparse Cholesky on rank 0
+        extra += result.extra["projection"]["factorisations"]
+    assert (steps > 0) == (tol > 1e-6)
+    assert sym1 - sym0 == 1 + steps + extra
+    assert num1 - num0 == (1 if steps else 3) + steps + extra
+    assert estimate.details["lambda_max_method"] == ("multigrid" if steps else "factorised")
+    assert result.timings["penalty"] == pytest.approx(
+        estimate.time + (surface.time if surface else 0.0), rel=1e-12
+    )
+
+
+@pytest.mark.parametrize("h", [1 / 16, 1 / 128])
+def test_parallel_dense_estimate_matches_serial(h):
+    """2D default: dense, from the condensed factorisation (computed on all ranks, S_C
+    on rank 0): the same r* to round-off. At h = 1/128 (c = 256), distributed, MUMPS
+    fills one triangle of S_C and leaves scratch values in the other, which must not
+    be read."""
+    problem = example1(h=h).problem()
+    serial_problem = example1(MPI.COMM_SELF, h=h).problem()
+    dense, dense_serial = estimate_penalty(problem), estimate_penalty(serial_problem)
+    assert dense.details["method"] == "dense"
+    assert dense.r == pytest.approx(dense_serial.r, rel=1e-10)
+    assert dense.lambda_min == pytest.approx(dense_serial.lambda_min, rel=1e-10)
+    assert dense.lambda_max == pytest.approx(dense_serial.lambda_max, rel=1e-10)
+    serial_problem.destroy()
+
+
+def test_dense_estimate_matches_serial():
+    """The dense r* on all ranks against one rank: the same λ_min, λ_max to round-off
+    (the dense work is on rank 0; S_C comes from all ranks)."""
+    serial_problem = example1(MPI.COMM_SELF, h=1 / 64).problem()
+    reference = estimate_penalty(serial_problem)
+    serial_problem.destroy()
+    problem = example1(h=1 / 64).problem()
+    dense = estimate_penalty(problem)
+    assert dense.details["method"] == "dense" and dense.details["rigid_modes"] == 0
+    assert dense.lambda_min == pytest.approx(reference.lambda_min, rel=1e-10)
+    assert dense.lambda_max == pytest.approx(reference.lambda_max, rel=1e-10)
+
+
+def test_parallel_estimate_matches_serial():
+    """The iterative method on all ranks against one rank."""
+    problem = example1(h=1 / 16).problem()
+    serial_problem = example1(MPI.COMM_SELF, h=1 / 16).problem()
+    dense = estimate_penalty(problem)
+    est = estimate_penalty(problem, tol=TIGHT, method="iterative")
+    serial = estimate_penalty(serial_problem, tol=TIGHT, method="iterative")
+    assert est.r == pytest.approx(serial.r, rel=1e-6)
+    assert est.lambda_min == pytest.approx(serial.lambda_min, rel=1e-6)
+    assert est.lambda_max == pytest.approx(serial.lambda_max, rel=1e-6)
+    assert est.r == pytest.approx(dense.r, rel=1e-6)
+    # default tolerance: λ_max by multigrid, whose aggregates depend on the partition;
+    # LOBPCG stops at a residual of tol/2, so λ_max (and r*) move within its accuracy
+    # (≤ 2e-4 against the dense reference, benchmarks/penalty_accuracy.py)
+    loose = estimate_penalty(problem, method="iterative")
+    loose_serial = estimate_penalty(serial_problem, method="iterative")
+    assert loose.details["lambda_max_method"] == "multigrid"
+    assert loose.r == pytest.approx(loose_serial.r, rel=2e-4)
+    serial_problem.destroy()
+
+
+@pytest.mark.parametrize("tol", [0.0, 1.0, -1e-3])
+def test_bad_tolerance(tol):
+    problem = example1(h=1 / 8, mesher="builtin").problem()
+    with pytest.raises(ValueError, match="tol must lie in"):
+        estimate_penalty(problem, tol=tol)
+
+
+@pytest.mark.parametrize(
+    "scene, expected",
+    [
+        (lambda: example1(h=1 / 16), 2),  # flat Γ_C: 1, x (y is constant there)
+        (lambda: example2(level=0), 3),  # curved Γ_C: 1, x, y
+        (lambda: example3(level=0), 3),  # flat bottom face: 1, x, y (z is constant)
+    ],
+)
+def test_trial_pressures_drop_dependent_ones(scene, expected):
+    """λ_max's start solves only for affine pressures independent on Γ_C (MPI-safe)."""
+    from admm_dolfinx.penalty.contact_operators import ContactSpace
+    from admm_dolfinx.penalty.extremes import affine_pressure_loads
+
+    problem = scene().problem()
+    space = ContactSpace(problem)
+    loads = affine_pressure_loads(space)
+    try:
+        assert len(loads) == expected
+        gram = np.array([[a.dot(b) for b in loads] for a in loads])  # global dots
+        eigenvalues = np.linalg.eigvalsh(gram)
+        assert eigenvalues[0] > 1e-6 * eigenvalues[-1]  # independent, none near zero
+    finally:
+        for vec in loads:
+            vec.destroy()
+        space.destroy()
+
+
+class _SignFlips:
+    """An indefinite preconditioner (every other local entry negated): CG breaks down."""
+
+    def apply(self, pc, x, y):
+        x.copy(y)
+        y.getArray()[::2] *= -1.0
+
+
+def test_ritz_start_falls_back_when_cg_breaks_down():
+    """When the start's CG really breaks down (an indefinite preconditioner, not just the
+    planned steps taken), each response is one preconditioner application instead: the
+    Ritz vectors are finite, B-orthonormal and lie in span{P f_i}."""
+    from admm_dolfinx.penalty.contact_operators import ContactSpace
+    from admm_dolfinx.penalty.extremes import affine_pressure_loads
+    from admm_dolfinx.penalty.lobpcg import BLOCK_SIZE, _ritz_start, gram_matrix
+
+    problem = example1(h=1 / 16).problem()
+    space = ContactSpace(problem)
+    loads = affine_pressure_loads(space)
+    flipped = [load.copy() for load in loads]
+    for vec in flipped:
+        vec.getArray()[::2] *= -1.0
+    pc = PETSc.PC().create(comm=problem.comm)
+    pc.setType(PETSc.PC.Type.PYTHON)
+    pc.setPythonContext(_SignFlips())
+    pc.setOperators(problem.A)
+    start = []
+    try:
+        start, _ = _ritz_start(problem.K, problem.A, pc, loads, "test_breakdown_")
+        assert len(start) == BLOCK_SIZE
+        gram = gram_matrix(problem.A, start)
+        assert np.all(np.isfinite(gram))
+        np.testing.assert_allclose(gram, np.eye(BLOCK_SIZE), atol=1e-10)
+        basis = np.array([[a.dot(b) for b in flipped] for a in flipped])
+        for vec in start:  # the part of vec outside span{P f_i} vanishes
+            coefficients = np.linalg.solve(basis, [f.dot(vec) for f in flipped])
+            residual = vec.copy()
+            residual.maxpy(-coefficients, flipped)
+            assert residual.norm() <= 1e-10 * vec.norm()
+            residual.destroy()
+    finally:
+        for vec in (*start, *loads, *flipped):
+            vec.destroy()
+        pc.destroy()
+        space.destroy()
+
+
+def test_iterative_method_with_a_condensed_operator_uses_its_own():
+    """method="iterative" with the solver's condensed operator: iterative, not dense."""
+    from admm_dolfinx.linalg.condensed import CondensedOperator
+
+    problem = example1(h=1 / 16).problem()
+    condensed = CondensedOperator(problem, "test_shared_")
+    try:
+        shared = estimate_penalty(problem, operator=condensed)
+        iterative = estimate_penalty(problem, operator=condensed, method="iterative")
+    finally:
+        condensed.destroy()
+    assert shared.details["method"] == "dense"
+    assert iterative.details["method"] == "iterative"
+    assert iterative.r == pytest.approx(shared.r, rel=0.05)
+
+
+@pytest.mark.parametrize("rigid", [0, 1, 6])
+@pytest.mark.parametrize("known", [True, False])
+def test_dense_ends_against_eigvalsh(rigid, known):
+    """The dense r* on a synthetic pencil (curved-like W: c > m) with up to 6 rigid
+    modes, given (deflated) or found by their θ = 1/r_a: the same λ_min, λ_max and
+    rigid count as numpy's eigvalsh of the pencil."""
+    from admm_dolfinx.penalty import dense as dense_pencil
+
+    rng = np.random.default_rng(7 + rigid)
+    m, c = 450, 600  # W: c × m of full column rank, as for curved Γ_C
+    q, _ = np.linalg.qr(rng.standard_normal((c, c)))
+    spectrum = np.concatenate([np.zeros(rigid), np.geomspace(1.0, 2e4, c - rigid)])
+    schur = (q * spectrum) @ q.T
+    schur = 0.5 * (schur + schur.T)
+    weights = rng.standard_normal((c, m))
+    k_cc = weights @ weights.T
+    # reference: every eigenvalue θ of T(r_a) by numpy, mapped to λ = θ/(1 − r_a θ)
+    r_a = 1e-3 * np.trace(schur) / np.trace(k_cc)
+    theta = np.linalg.eigvalsh(dense_pencil.compliance_matrix(schur, k_cc, weights, r_a))
+    finite = theta[1.0 - r_a * theta > dense_pencil.RIGID_TOL]
+    lam = finite / (1.0 - r_a * finite)
+    assert theta.size - finite.size == rigid
+    # the rigid directions in compliance coordinates: Wᵀz for z in the kernel of S_C
+    directions = weights.T @ q[:, :rigid] if known else None
+    lam_min, lam_max, count = dense_pencil.extremes_from_schur(
+        schur, k_cc, weights, rigid=directions
+    )
+    assert count == rigid
+    assert lam_min == pytest.approx(lam[0], rel=1e-9)
+    assert lam_max == pytest.approx(lam[-1], rel=1e-9)
+
+
+def test_dense_failure_is_a_clear_error_on_every_rank(monkeypatch):
+    """A failure of the dense work on rank 0 is a RuntimeError on every rank, not a hang."""
+    from admm_dolfinx.penalty import dense as dense_pencil
+
+    problem = example1(h=1 / 32).problem()
+
+    def broken(*args, **kwargs):
+        raise np.linalg.LinAlgError("a broken LAPACK")
+
+    if MPI.COMM_WORLD.rank == 0:  # rank 0 alone does the dense work
+        monkeypatch.setattr(dense_pencil, "compliance_matrix", broken)
+    with pytest.raises(RuntimeError, match=r"dense r.*broken LAPACK"):
+        estimate_penalty(problem)
+    monkeypatch.undo()
+    assert estimate_penalty(problem).details["method"] == "dense"
