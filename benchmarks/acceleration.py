@@ -123,24 +123,20 @@ def run_variant(problem, u_ref, r, options, cap=None, max_iter=3000, condensed=N
     """
     options = dict(options)
     rounds = options.pop("rounds", None)
-    saved = polish_module.MAX_ROUNDS
     if rounds is not None:
-        polish_module.MAX_ROUNDS = rounds
+        options["polish_rounds"] = rounds
     trace = ErrorTrace(u_ref, cap)
-    try:
-        with admm_dolfinx.ADMMSolver(
-            problem, penalty=r, rtol=1e-300, max_iter=max_iter, condensed=condensed, **options
-        ) as solver:
-            try:
-                result = solver.solve(callback=trace)
-            except ADMMConvergenceError as err:
-                result = err.result
-            # the set-up at r, as the plain solve's: A + rK (or the dense S_C + rK_CC
-            # and the polisher's compliance) and its factorisation
-            t_fact = result.timings["operator"] + result.timings["factorization"]
-            t_penalty = result.timings["penalty"]
-    finally:
-        polish_module.MAX_ROUNDS = saved
+    with admm_dolfinx.ADMMSolver(
+        problem, penalty=r, rtol=1e-300, max_iter=max_iter, condensed=condensed, **options
+    ) as solver:
+        try:
+            result = solver.solve(callback=trace)
+        except ADMMConvergenceError as err:
+            result = err.result
+        # the set-up at r, as the plain solve's: A + rK (or the dense S_C + rK_CC
+        # and the polisher's compliance) and its factorisation
+        t_fact = result.timings["operator"] + result.timings["factorization"]
+        t_penalty = result.timings["penalty"]
     per_iteration = max(result.timings["iterations"] - trace.time, 0.0) / max(result.iterations, 1)
     trace.work.destroy()
     return trace, per_iteration, t_fact, t_penalty, result.penalty

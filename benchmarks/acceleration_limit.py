@@ -39,7 +39,10 @@ from acceleration import TARGETS, ErrorTrace, reference, run_variant, say, write
 
 import admm_dolfinx
 from admm_dolfinx.admm.anderson import AndersonMixer
-from admm_dolfinx.admm.solver import DEFAULT_ALPHA, DEFAULT_ANDERSON
+from admm_dolfinx.admm.settings import PRESETS
+
+DEFAULT_ALPHA = PRESETS["accelerated"]["alpha"]
+DEFAULT_ANDERSON = PRESETS["accelerated"]["anderson"]
 from admm_dolfinx.linalg.operators import PenalisedOperator
 from admm_dolfinx.scenes.library import example1, example3
 

@@ -48,7 +48,7 @@ def main():
         scene = build_case(name, comm, small=args.small)
         problem = scene.problem(contact_normal=MODEL)
         fast, s_fast = run(problem)
-        r_star = fast.extra["penalty_estimate"]["r"]
+        r_star = fast.penalty_estimate.r
         paper, s_paper = run(problem, mode="paper", penalty=r_star)
         rows.append(
             {

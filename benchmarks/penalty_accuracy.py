@@ -59,7 +59,7 @@ def main():
         lmin, lmax = reference(problem, aligned)
         r_ref = 1.0 / np.sqrt(lmin * lmax)
         configs = [("dense", None)] if problem.gdim == 2 else []
-        configs += [("iterative", 1e-2), ("iterative", 1e-8)]
+        configs += [("local", 1e-2), ("factorised", 1e-8)]
         for method, tol in configs:
             options = {"method": method} if tol is None else {"method": method, "tol": tol}
             est = admm_dolfinx.estimate_penalty(problem, **options)

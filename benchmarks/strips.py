@@ -60,7 +60,7 @@ def main():
         result, elapsed, path = solve(problem)
         reference = solve_snes_vi(problem)
         t = result.timings
-        estimate = result.extra["penalty_estimate"]
+        estimate = result.penalty_estimate.as_dict()
         rows.append(
             {
                 "m": problem.num_contact_nodes,

@@ -82,7 +82,7 @@ def admm_sweep(problem, u_ref, label, tols, extra_time=0.0, **options):
             solver.operator.timings["factorization"]
         )
         for tol in tols:
-            solver.rtol = tol
+            solver.update_settings(rtol=tol)
             result = solver.solve()
             error = error_of(result.u.x.array, u_ref)
             elapsed = fixed + result.timings["iterations"]
@@ -137,9 +137,9 @@ def bench(name, scene, out, osqp_ok=True, light=False):
         ref = solve_snes_vi(problem, tol=1e-11, initial_guess=tight.u.x.petsc_vec)
         u_ref = ref.u.x.array.copy()
     # r* itself (in 3D the default penalises at its own r, in the surface metric)
-    r_star = tight.extra["penalty_estimate"]["r"]
+    r_star = tight.penalty_estimate.r
     points = admm_sweep(problem, u_ref, "ADMM accelerated", tols)
-    t_r_star = tight.extra["penalty_estimate"]["time"]  # the paper's ADMM pays for r* too
+    t_r_star = tight.penalty_estimate.time  # the paper's ADMM pays for r* too
     points += admm_sweep(
         problem, u_ref, "ADMM paper r*", tols, t_r_star, mode="paper", penalty=r_star
     )

@@ -124,7 +124,7 @@ for step, depth in enumerate(depths, start=1):
             "depth": float(depth),
             "active": result.num_active,
             "half_width": half_width,
-            "max_pressure": result.extra["max_pressure"],
+            "max_pressure": result.max_pressure,
             "iterations": result.iterations,
             "time": t_step,
             "fresh_iterations": reference.iterations,

@@ -62,7 +62,7 @@ def test_run_3d_penalty_metric(tmp_path_factory, metric):
     assert main([*argv, "--json", str(tmp / "s.json")]) == 0
     data = json.loads((tmp / "s.json").read_text())
     assert data["converged"]
-    assert data["settings"]["penalty_metric"] == ("surface" if metric == "auto" else "mass")
+    assert data["plan"].endswith(")") and ("metric surface" in data["plan"]) == (metric == "auto")
 
 
 def test_output_folder_writes_nothing_on_failure(tmp_path_factory):

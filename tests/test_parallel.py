@@ -4,6 +4,8 @@ Run under ``mpiexec -n 2`` and ``-n 3`` (see the Makefile); serially there is no
 to compare and the tests are skipped.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 from mpi4py import MPI
@@ -65,8 +67,8 @@ def test_parallel_auto_penalty_matches_serial():
     assert par.penalty == pytest.approx(ser.penalty, rel=1e-10)
     assert par.iterations == ser.iterations
     assert par.history["accelerated"] == ser.history["accelerated"]
-    assert par.extra["polish"] == ser.extra["polish"] | {"time": par.extra["polish"]["time"]}
-    assert par.extra["polish"]["polished_at"] == par.iterations
+    assert dataclasses.replace(par.polish, time=0.0) == dataclasses.replace(ser.polish, time=0.0)
+    assert par.polish.polished_at == par.iterations
     assert rel_diff(up, us) <= 1e-10
     assert rel_diff(lp, ls) <= 1e-10
 
@@ -85,15 +87,17 @@ def test_parallel_surface_metric_matches_serial():
     results = {}
     for name, comm in (("par", MPI.COMM_WORLD), ("ser", MPI.COMM_SELF)):
         problem = example3(comm, level=1).problem()
-        with ADMMSolver(problem, rtol=1e-10, penalty_tol=1e-8) as solver:
+        with ADMMSolver(
+            problem, rtol=1e-10, penalty_method="factorised", penalty_tol=1e-8
+        ) as solver:
             result = solver.solve()
         _, u = gather_nodal(result.u)
         results[name] = (result, u)
     (par, up), (ser, us) = results["par"], results["ser"]
-    assert par.settings["penalty_metric"] == ser.settings["penalty_metric"] == "surface"
+    assert par.plan.metric == ser.plan.metric == "surface"
     for key in ("lambda_min", "lambda_max", "beta", "mu_max", "r"):
-        assert par.extra["surface_penalty"][key] == pytest.approx(
-            ser.extra["surface_penalty"][key], rel=1e-9
+        assert par.surface_penalty.as_dict()[key] == pytest.approx(
+            ser.surface_penalty.as_dict()[key], rel=1e-9
         )
     assert par.iterations == ser.iterations
     assert par.history["accelerated"] == ser.history["accelerated"]

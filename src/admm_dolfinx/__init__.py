@@ -19,7 +19,7 @@ Typical use inside a FEniCS workflow::
 from __future__ import annotations
 
 from admm_dolfinx import _bootstrap  # noqa: F401  (must precede dolfinx/petsc4py)
-from admm_dolfinx.admm import ADMMConvergenceError, ADMMResult, ADMMSolver
+from admm_dolfinx.admm import ADMMConvergenceError, ADMMResult, ADMMSettings, ADMMSolver
 from admm_dolfinx.penalty import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.problem import Ball, ContactProblem, Obstacle, Plane
 from admm_dolfinx.problem.kkt import KKTResiduals
@@ -34,6 +34,7 @@ except Exception:  # pragma: no cover - running from a source tree without insta
 __all__ = [
     "ADMMConvergenceError",
     "ADMMResult",
+    "ADMMSettings",
     "ADMMSolver",
     "Ball",
     "ContactProblem",

@@ -62,25 +62,24 @@ def cmd_run(args) -> int:
     t0 = time.perf_counter()
     status = 0
     try:
-        with ADMMSolver(
-            problem,
-            penalty=args.penalty,
-            mode=args.mode,
-            rtol=args.rtol,
-            max_iter=args.max_iter,
-            polish=False if args.no_polish else None,
-            penalty_metric=args.penalty_metric,
-            petsc_options_prefix="run_",
-        ) as solver:
+        options = {
+            "penalty": args.penalty,
+            "mode": args.mode,
+            "rtol": args.rtol,
+            "max_iter": args.max_iter,
+            "petsc_options_prefix": "run_",
+        }
+        if args.no_polish:
+            options["polish"] = False
+        if args.penalty_metric != "auto":
+            options["penalty_metric"] = args.penalty_metric
+        with ADMMSolver(problem, **options) as solver:
             result = solver.solve()
     except ADMMConvergenceError as err:
         result, status = err.result, 2
         _say(f"error: {err}")
     _say(result.summary())
-    summary = result_summary(scene, problem, result) | {
-        "settings": result.settings,
-        "wall_time": time.perf_counter() - t0,
-    }
+    summary = result_summary(scene, problem, result) | {"wall_time": time.perf_counter() - t0}
     if args.json:
         write_json(comm, args.json, summary)
         _say(f"wrote {args.json}")
@@ -92,7 +91,6 @@ def cmd_run(args) -> int:
             problem,
             result,
             coordinate=coordinate,
-            extra={"settings": result.settings},
         )
         _say(f"wrote {args.out}/")
     problem.destroy()

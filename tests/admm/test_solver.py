@@ -74,9 +74,9 @@ def test_history_and_timings_are_recorded():
         result = solver.solve()
     assert len(result.history["du"]) == result.iterations
     last = [result.history[k][-1] for k in ("fpr", "feasibility", "complementarity", "equilibrium")]
-    assert max(last) <= solver.rtol
+    assert max(last) <= solver.settings.rtol
     # the in-loop residuals are honest: the independent KKT check agrees in magnitude
-    assert result.kkt.max() <= 10 * solver.rtol
+    assert result.kkt.max() <= 10 * solver.settings.rtol
     with ADMMSolver(problem, penalty=3000.0, mode="paper") as solver:
         paper = solver.solve()
     assert paper.history["du"][-1] <= 1e-5 and paper.history["dp"][-1] <= 1e-5

@@ -168,7 +168,7 @@ def test_same_solution_as_the_paper_metric(scene):
     """Both metrics have the same fixed point; the tilted block exercises the lifting."""
     problem = scene().problem(contact_normal="body")
     with ADMMSolver(problem, rtol=1e-10, max_iter=3000) as solver:  # 3D default: surface
-        assert solver.settings["penalty_metric"] == "surface"
+        assert solver.plan.metric == "surface"
         surface = solver.solve()
     with ADMMSolver(problem, rtol=1e-10, max_iter=3000, penalty_metric="mass") as solver:
         mass = solver.solve()
@@ -185,7 +185,7 @@ def test_default_matches_snes_vi():
         result = solver.solve()
     ref = solve_snes_vi(problem)
     assert rel_diff(_global(problem, result.u.x.array), _global(problem, ref.u.x.array)) <= 1e-8
-    assert result.extra["surface_penalty"]["beta"] > 0.0
+    assert result.surface_penalty.beta > 0.0
 
 
 @serial_only
@@ -195,7 +195,7 @@ def test_beta_and_r_against_the_dense_pencil(level):
     import scipy.linalg as sla
 
     problem = example3(level=level).problem(contact_normal="body")
-    with ADMMSolver(problem, penalty_tol=1e-8) as solver:
+    with ADMMSolver(problem, penalty_method="factorised", penalty_tol=1e-8) as solver:
         info = solver.surface_penalty
     metric = SurfaceMetric(problem)
     try:
@@ -238,7 +238,7 @@ def test_surface_metric_errors_in_2d_and_unknown_metric():
     with pytest.raises(ValueError, match="penalty_metric must be one of"):
         ADMMSolver(problem, penalty_metric="h1")
     with ADMMSolver(problem) as solver:  # 2D: the paper's metric (and polishing)
-        assert solver.settings["penalty_metric"] == "mass"
+        assert solver.plan.metric == "mass"
 
 
 def test_load_step_and_moved_obstacle_reuse_the_surface_metric():
@@ -266,7 +266,7 @@ def test_load_step_and_moved_obstacle_reuse_the_surface_metric():
     with ADMMSolver(fresh_problem, rtol=1e-10) as solver:
         expected = solver.solve()
     assert rel_diff(_global(problem, moved.u.x.array), _global(problem, expected.u.x.array)) <= 1e-8
-    assert moved.extra["max_pressure"] > pushed.extra["max_pressure"] > 0.0
+    assert moved.max_pressure > pushed.max_pressure > 0.0
 
 
 def test_no_surface_gradient_falls_back_to_the_paper_metric():

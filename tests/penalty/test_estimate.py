@@ -31,8 +31,8 @@ def test_example1_against_algorithm5(h):
     dense = estimate_penalty(problem)  # 2D default: dense, from the condensed factorisation
     assert dense.details["method"] == "dense"
     _compare(dense, ev[0], ev[-1], 1e-9)
-    _compare(estimate_penalty(problem, tol=TIGHT, method="iterative"), ev[0], ev[-1], 1e-6)
-    loose = estimate_penalty(problem, method="iterative")  # default tolerance
+    _compare(estimate_penalty(problem, tol=TIGHT, method="factorised"), ev[0], ev[-1], 1e-6)
+    loose = estimate_penalty(problem, method="local")  # default tolerance
     _compare(loose, ev[0], ev[-1], 0.05)
     assert loose.solves < 60
 
@@ -71,10 +71,10 @@ def test_floating_curved_body(level):
     assert dense.details["method"] == "dense" and dense.details["rigid_modes"] == 1
     _compare(dense, lam[0], lam[-2], 1e-9)
     assert problem.rigid_motions.floating == 1  # what the dense r* deflates
-    est = estimate_penalty(problem, tol=TIGHT, method="iterative")
+    est = estimate_penalty(problem, tol=TIGHT, method="factorised")
     assert est.details["rigid_modes"] == 1
     _compare(est, lam[0], lam[-2], 1e-6)
-    loose = estimate_penalty(problem, method="iterative")
+    loose = estimate_penalty(problem, method="local")
     _compare(loose, lam[0], lam[-2], 0.05)
     # the multigrid λ_max does not apply to a floating body: it falls back, and says so
     assert loose.details["lambda_max_method"] == "factorised"
@@ -111,30 +111,31 @@ def test_auto_penalty_2d_factorises_the_body_once():
 
 
 @pytest.mark.parametrize("metric", ["mass", "surface"])
-@pytest.mark.parametrize("tol", [1e-2, 1e-8])
-def test_auto_penalty_shares_one_symbolic_factorisation(tol, metric):
+@pytest.mark.parametrize("method,tol", [("local", 1e-2), ("factorised", 1e-8)])
+def test_auto_penalty_shares_one_symbolic_factorisation(method, tol, metric):
     """3D (iterative r*), counted from PETSc's log (Cholesky events): the whole body is
-    analysed once. At loose tolerance it is factorised once, at r* (λ_max by
-    multigrid; each layer along Γ_C adds one small factorisation); at tight tolerance
-    also at r_a and for the exact Schur complement. The surface metric (the 3D
+    analysed once. With the local method it is factorised once, at r* (λ_max by
+    multigrid; each layer along Γ_C adds one small factorisation); with the factorised
+    one also at r_a and for the exact Schur complement. The surface metric (the 3D
     default) adds one small factorisation per layer of its μ_max and one of the
     surface QP per change of the contact set (rank 0), and factorises the body at its
     own r, with the same symbolic analysis."""
     problem = example3(level=0).problem(contact_normal="body")
     sym0, num0 = _cholesky_counts()
-    with ADMMSolver(problem, penalty_tol=tol, penalty_metric=metric) as solver:
+    options = {"penalty_method": method, "penalty_tol": tol, "penalty_metric": metric}
+    with ADMMSolver(problem, **options) as solver:
         result = solver.solve()
         estimate = solver.penalty_estimate
         surface = solver.surface_penalty
     sym1, num1 = _cholesky_counts()
-    assert estimate is not None and estimate.details["method"] == "iterative"
+    assert estimate is not None and estimate.details["method"] == method
     assert (surface is not None) == (metric == "surface")
     assert result.penalty == (estimate.r if surface is None else surface.r)
     steps = estimate.details["layer_steps"]
     extra = 1 if surface else 0  # the layer of μ_max
     if surface and problem.comm.rank == 0:  # step 2's QP: sparse Cholesky on rank 0
-        extra += result.extra["projection"]["factorisations"]
-    assert (steps > 0) == (tol > 1e-6)
+        extra += result.projection["factorisations"]
+    assert (steps > 0) == (method == "local")
     assert sym1 - sym0 == 1 + steps + extra
     assert num1 - num0 == (1 if steps else 3) + steps + extra
     assert estimate.details["lambda_max_method"] == ("multigrid" if steps else "factorised")
@@ -177,8 +178,8 @@ def test_parallel_estimate_matches_serial():
     problem = example1(h=1 / 16).problem()
     serial_problem = example1(MPI.COMM_SELF, h=1 / 16).problem()
     dense = estimate_penalty(problem)
-    est = estimate_penalty(problem, tol=TIGHT, method="iterative")
-    serial = estimate_penalty(serial_problem, tol=TIGHT, method="iterative")
+    est = estimate_penalty(problem, tol=TIGHT, method="factorised")
+    serial = estimate_penalty(serial_problem, tol=TIGHT, method="factorised")
     assert est.r == pytest.approx(serial.r, rel=1e-6)
     assert est.lambda_min == pytest.approx(serial.lambda_min, rel=1e-6)
     assert est.lambda_max == pytest.approx(serial.lambda_max, rel=1e-6)
@@ -186,8 +187,8 @@ def test_parallel_estimate_matches_serial():
     # default tolerance: λ_max by multigrid, whose aggregates depend on the partition;
     # LOBPCG stops at a residual of tol/2, so λ_max (and r*) move within its accuracy
     # (≤ 2e-4 against the dense reference, benchmarks/penalty_accuracy.py)
-    loose = estimate_penalty(problem, method="iterative")
-    loose_serial = estimate_penalty(serial_problem, method="iterative")
+    loose = estimate_penalty(problem, method="local")
+    loose_serial = estimate_penalty(serial_problem, method="local")
     assert loose.details["lambda_max_method"] == "multigrid"
     assert loose.r == pytest.approx(loose_serial.r, rel=2e-4)
     serial_problem.destroy()
@@ -275,18 +276,18 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
 
 
 def test_iterative_method_with_a_condensed_operator_uses_its_own():
-    """method="iterative" with the solver's condensed operator: iterative, not dense."""
+    """method="local" with the solver's condensed operator: iterative, not dense."""
     from admm_dolfinx.linalg.condensed import CondensedOperator
 
     problem = example1(h=1 / 16).problem()
     condensed = CondensedOperator(problem, "test_shared_")
     try:
         shared = estimate_penalty(problem, operator=condensed)
-        iterative = estimate_penalty(problem, operator=condensed, method="iterative")
+        iterative = estimate_penalty(problem, operator=condensed, method="local")
     finally:
         condensed.destroy()
     assert shared.details["method"] == "dense"
-    assert iterative.details["method"] == "iterative"
+    assert iterative.details["method"] in ("local", "factorised")
     assert iterative.r == pytest.approx(shared.r, rel=0.05)
 
 

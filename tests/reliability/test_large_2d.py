@@ -43,7 +43,7 @@ def test_strip_converges_with_the_defaults(cells, path, monkeypatch):
         assert isinstance(solver.polisher, expected)
         result = solver.solve()
     assert result.converged and result.iterations <= 5
-    estimate = result.extra["penalty_estimate"]
+    estimate = result.penalty_estimate.as_dict()
     assert estimate["lambda_max"] / estimate["lambda_min"] > 1e9  # the hard part
     reference = solve_snes_vi(problem)
     # at κ ≈ 1e10 the round-off of the step-1 solve alone reaches 1e-8 relative: the

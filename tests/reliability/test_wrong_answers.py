@@ -84,7 +84,7 @@ def test_paper_mode_far_from_r_star_is_not_converged(scene, problem):
 def test_paper_mode_at_r_star_converges_verified(scene, problem):
     result = ADMMSolver(problem, mode="paper").solve()
     check = residuals(problem, scene.a, scene.L, result)
-    assert result.converged and max(check.values()) <= result.settings["kkt_tol"]
+    assert result.converged and max(check.values()) <= result.settings.kkt_tol
 
 
 @pytest.mark.parametrize("E", [1e-90, 1e-16, 1.0, 1e90])

@@ -132,9 +132,9 @@ def test_extreme_penalty_converges_slowly_and_says_so(factor):
         at_r_star = solver.solve()
     _check_sane(result, problem)
     assert result.iterations > 5 * at_r_star.iterations
-    assert "slow" in result.extra["warning"] and "penalty='auto'" in result.extra["warning"]
+    assert "slow" in result.warning and "penalty='auto'" in result.warning
     assert "WARNING" in result.summary()
-    assert not at_r_star.extra["warning"]
+    assert not at_r_star.warning
 
 
 def test_zero_load_gives_zero_solution():

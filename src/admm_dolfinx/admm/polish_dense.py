@@ -22,7 +22,8 @@ the contact pencil.
 
 The guess 𝒜 = {λ⁺ > 0} comes from the ADMM iterate. It is corrected by
 primal-dual active-set steps (nodes with λ < 0 leave 𝒜, nodes that penetrate join it),
-at most :data:`MAX_ROUNDS` of them; a guess already tried is not tried again (the
+at most ``polish_rounds`` of them (the solver's setting; :data:`MAX_ROUNDS` by
+default); a guess already tried is not tried again (the
 outcome depends on 𝒜 alone). An empty guess (the first iterates, before ADMM
 predicts any contact) starts from the unconstrained solution: its penetrating nodes
 join first. For a floating body that system is singular, and the attempt fails
@@ -56,7 +57,7 @@ __all__ = ["MAX_ROUNDS", "ActiveSetPolish"]
 
 logger = get_logger(__name__)
 
-#: Primal-dual active-set corrections of one guess.
+#: Primal-dual active-set corrections of one guess, by default (``polish_rounds``).
 MAX_ROUNDS = 10
 #: Relative tolerance of the sign conditions (λ ≥ 0 on 𝒜, N u ≤ g off it): round-off
 #: of the dense solve, far below any stopping tolerance.
@@ -86,8 +87,11 @@ class ActiveSetPolish:
         schur: npt.NDArray[np.float64] | None,
         k_cc: npt.NDArray[np.float64] | None,
         weights: npt.NDArray[np.float64] | None,
+        rounds: int = MAX_ROUNDS,
     ):
         self.comm = problem.comm
+        #: Primal-dual active-set corrections per guess.
+        self.max_rounds = int(rounds)
         self.problem = problem
         self._schur, self._k_cc, self._weights = schur, k_cc, weights
         self._layout = RankLayout(self.comm, problem.contact.gap.size)
@@ -105,12 +109,14 @@ class ActiveSetPolish:
         """Nothing to free (the dense arrays are NumPy's)."""
 
     @classmethod
-    def from_operator(cls, problem: ContactProblem, operator) -> ActiveSetPolish:
+    def from_operator(
+        cls, problem: ContactProblem, operator, rounds: int = MAX_ROUNDS
+    ) -> ActiveSetPolish:
         """From a :class:`~admm_dolfinx.linalg.condensed.CondensedOperator`.
 
         The arrays outlive the operator.
         """
-        return cls(problem, operator.schur, operator.k_cc, operator.support.weights)
+        return cls(problem, operator.schur, operator.k_cc, operator.support.weights, rounds)
 
     def set_penalty(self, r: float) -> None:
         """Use the penalty r of the step-1 solves: T and I − rT on rank 0; collective.
@@ -202,7 +208,7 @@ class ActiveSetPolish:
         t = sq * normal_u - self._compliance @ (sq * force)
         finite = np.isfinite(g)
         active = guess
-        for rounds in range(1, MAX_ROUNDS + 1):
+        for rounds in range(1, self.max_rounds + 1):
             self._tried.add(active.tobytes())
             solution = self._equality_solution(t, active, sq * np.where(active, g, 0.0))
             if solution is None:
@@ -217,7 +223,7 @@ class ActiveSetPolish:
             active = (active & ~leave) | join
             if active.tobytes() in self._tried:
                 return None, rounds
-        return None, MAX_ROUNDS
+        return None, self.max_rounds
 
     def _equality_solution(self, t, active, y_active):
         """Solve (I − rT) ŷ + T λ̂ = t with ŷ_𝒜 given and λ̂ = 0 off 𝒜 (rank 0)."""

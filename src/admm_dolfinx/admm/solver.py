@@ -1,6 +1,7 @@
 """The ADMM iteration for unilateral contact (Koko 2019, Algorithm 2), and its acceleration.
 
-With the lumped contact mass M, nodal normals N and the gap g (design.md §1–2), one
+With the lumped contact mass M, the contact directions N and the gap g (docs/design.md
+§1–2), one
 iteration maps the state z = (p, λ) to
 
     (A + r NᵀMN) u = f + NᵀM (r p − λ)              step 1: one solve (stored factors)
@@ -45,8 +46,10 @@ Stopping tests:
   W weighs p by M and λ by M/r², so both parts are displacements.
 * ``"change"`` (the paper's): the relative changes of u and p⁺ are ≤ ``rtol``.
 
-``mode="paper"`` is the paper's algorithm: α = 1, no acceleration, the relative-change
-test at ``rtol = 1e-5`` (which reproduces its iteration counts).
+``mode="paper"`` is the paper's algorithm (a preset of :mod:`admm_dolfinx.admm.settings`):
+α = 1, no acceleration, the relative-change test at the paper's tolerance. What the
+solver chooses where a setting is automatic, and why, is its :attr:`ADMMSolver.plan`
+(:mod:`admm_dolfinx.admm.plan`).
 
 When the stopping test is met, the relative KKT residuals are recomputed
 independently from (u, λ) (:mod:`admm_dolfinx.problem.kkt`): the solve has converged only if
@@ -62,15 +65,11 @@ the callback, which says so (``status="callback"``, ``converged=False``).
 
 from __future__ import annotations
 
-import math
-import numbers
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 from dolfinx import fem
 from dolfinx.common import Timer
 from mpi4py import MPI
@@ -79,14 +78,16 @@ from petsc4py import PETSc
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import agree, collective_call
 from admm_dolfinx.admm.anderson import AndersonMixer, weighted_norm
+from admm_dolfinx.admm.plan import SolverPlan, make_plan
 from admm_dolfinx.admm.polish_dense import ActiveSetPolish
 from admm_dolfinx.admm.polish_sparse import SparsePolish
-from admm_dolfinx.admm.surface_projection import SurfaceProjection
-from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
+from admm_dolfinx.admm.result import ADMMConvergenceError, ADMMResult, PolishInfo, Timings
+from admm_dolfinx.admm.settings import ADMMSettings, check_penalty
+from admm_dolfinx.admm.step2 import MassMetricStep, SurfaceMetricStep
+from admm_dolfinx.linalg.condensed import CondensedOperator
 from admm_dolfinx.linalg.operators import PenalisedOperator
-from admm_dolfinx.linalg.petsc import is_factorisation, unique_prefix
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
-from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL, PenaltyEstimate, estimate_penalty
+from admm_dolfinx.penalty.estimate import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.penalty.surface import SurfacePenalty, estimate_surface_penalty
 from admm_dolfinx.problem.checks import check_finite
 from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -96,178 +97,15 @@ __all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]
 
 logger = get_logger(__name__)
 
-#: Tolerance of the paper's relative-change test. With it, Example 1 needs the
-#: iteration counts of the paper's Table 1 (19 at r̄ and 35 at r* for h = 1/8, against
-#: our 19 and 34), so it is taken to be the paper's tolerance.
-PAPER_RTOL = 1e-5
-#: Default tolerance of the KKT / fixed-point-residual test.
-DEFAULT_RTOL = 1e-6
-#: Default ``kkt_tol`` with the relative-change test: that test bounds the changes of
-#: u and p, not the residuals, which it leaves larger where ADMM contracts slowly (a
-#: floating body at r*, a penalty at the edge of the paper's sampling range); a
-#: stagnated iteration (an r orders of magnitude off) is far above it.
-CHANGE_TEST_KKT_TOL = 1e-2
-#: Defaults of the accelerated mode, chosen by ``benchmarks/acceleration.py``.
-DEFAULT_ALPHA = 1.6
-DEFAULT_ANDERSON = 5
-
-_STOPPING = ("kkt", "change")
-_METRICS = ("auto", "mass", "surface")
 #: ``history["accelerated"]`` codes: what the evaluated state was.
 _REJECTED, _PLAIN, _ANDERSON, _POLISHED = -1, 0, 1, 2
 _NOTES = {_PLAIN: "", _ANDERSON: " (Anderson)", _POLISHED: " (polished)"}
-#: A solve that needs this many iterations or more says so in ``result.extra["warning"]``.
+#: A solve that needs this many iterations or more says so in ``result.warning``.
 SLOW_ITERATIONS = 300
-
-
-@dataclass
-class ADMMResult:
-    """Outcome of :meth:`ADMMSolver.solve`.
-
-    Attributes:
-        u: Displacement, a Function on the problem's space.
-        pressure: Contact pressure λ ≥ 0 as a P1 scalar Function, zero off Γ_C.
-        converged: Whether the solve converged: the stopping test was met *and* the
-            relative KKT residuals recomputed from (u, λ) after the loop (:attr:`kkt`)
-            are at most the solver's ``kkt_tol``. True for every returned result
-            except a callback stop.
-        status: ``"converged"``; ``"callback"`` (the callback asked to stop: returned
-            with ``converged=False``); on the result attached to an
-            :class:`ADMMConvergenceError`: ``"max_iter"`` (the test was not met),
-            ``"inaccurate"`` (the test was met but the recomputed KKT residuals exceed
-            ``kkt_tol``: the iteration stagnated) or ``"inexact_step1"`` (the step-1
-            solves are not exact enough for the loop's residual identity).
-        iterations: Number of ADMM iterations (= step-1 solves, rejected Anderson
-            steps included).
-        penalty: The penalty parameter r that was used.
-        history: Per-iteration lists: ``du``, ``dp`` (relative changes of u and p),
-            ``fpr`` (scaled fixed-point residual), ``feasibility``, ``complementarity``,
-            ``equilibrium`` (relative KKT residuals), ``active`` (global number of
-            nodes with λ > 0) and ``accelerated`` (what the evaluated state was: 0 a
-            plain step, 1 an accepted Anderson extrapolation, 2 an accepted polished
-            state, −1 a rejected proposal).
-        timings: Wall-clock seconds: ``assembly`` (problem operators), ``penalty``
-            (r*), ``operator`` (A + rK, and the dense compliance of Γ_C when
-            polishing), ``factorization``, ``iterations``, ``kkt``, ``total``.
-        kkt: Relative KKT residuals of (u, λ), computed independently after the loop.
-        multiplier: λ at the owned contact nodes (local array).
-        num_active: Global number of contact nodes with λ > 0.
-        num_contact_nodes: Global number m of contact nodes.
-        settings: The solver settings (mode, alpha, anderson, stopping, rtol, kkt_tol,
-            max_iter, polish, penalty_metric).
-        extra: ``max_pressure``, the ``penalty_estimate`` (as a dict) if any,
-            ``polish`` (None when off; else ``polished_at``, the iteration that
-            evaluated the polished state or None, ``attempts``, ``rounds`` (dense
-            solves), ``skipped`` (attempts skipped because polishing had taken longer
-            than the rest of the iterations) and ``time``, seconds within the
-            iterations), and a ``warning``
-            (non-empty when the solve was slow: ≥ 300 iterations, with the observed
-            contraction rate and the likely cause).
-    """
-
-    u: fem.Function
-    pressure: fem.Function
-    converged: bool
-    status: str
-    iterations: int
-    penalty: float
-    history: dict[str, list[float]]
-    timings: dict[str, float]
-    kkt: KKTResiduals
-    multiplier: npt.NDArray[np.float64]
-    num_active: int
-    num_contact_nodes: int
-    settings: dict[str, Any] = field(default_factory=dict)
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def polished(self) -> bool:
-        """Whether the solve ended from a polished (exact active-set) state."""
-        return bool((self.extra.get("polish") or {}).get("polished_at"))
-
-    def summary(self) -> str:
-        """A short human-readable report (what the demos print)."""
-        status = {
-            "converged": "converged",
-            "callback": "stopped by the callback (not converged)",
-            "max_iter": "NOT CONVERGED (iteration limit)",
-            "inaccurate": "NOT CONVERGED (stagnated: KKT residuals above tolerance)",
-            "inexact_step1": "NOT CONVERGED (inexact step-1 solves)",
-        }.get(self.status, self.status)
-        k = self.kkt
-        t = self.timings
-        est = self.extra.get("penalty_estimate")
-        surface = self.extra.get("surface_penalty")
-        how = (
-            f" (r* from λ_min {est['lambda_min']:.4g}, λ_max {est['lambda_max']:.4g}, "
-            f"{est['solves']} solves)"
-            if est
-            else ""
-        )
-        if surface:
-            how = (
-                f" in the surface metric r(M + βL_Γ), β = {surface['beta']:.4g} "
-                f"(from r* {est['r']:.6g}: λ_min {est['lambda_min']:.4g}, λ_max "
-                f"{est['lambda_max']:.4g}; μ_max {surface['mu_max']:.4g})"
-            )
-        s = self.settings
-        lines = [
-            f"ADMM {status} in {self.iterations} iterations, r = {self.penalty:.6g}{how}",
-            f"  {s.get('mode', '')} mode: alpha {s.get('alpha')}, Anderson memory "
-            f"{s.get('anderson')}, polish {'on' if s.get('polish') else 'off'}, stopping "
-            f"'{s.get('stopping')}' at rtol {s.get('rtol'):g} (KKT checked at "
-            f"{s.get('kkt_tol'):g})",
-            f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
-            f"  max pressure = {self.extra.get('max_pressure', float('nan')):.6g}",
-            "  KKT residuals (relative): "
-            f"feasibility {k.primal_feasibility:.2e}, complementarity "
-            f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}",
-            "  time [s]: " + ", ".join(f"{name} {value:.3f}" for name, value in t.items()),
-        ]
-        polish = self.extra.get("polish")
-        if polish:
-            at = polish["polished_at"]
-            lines.append(
-                f"  polish: {'exact state from iteration ' + str(at) if at else 'not used'}"
-                f" ({polish['attempts']} attempts, {polish['rounds']} active-set rounds, "
-                f"{polish['time']:.3f} s)"
-            )
-        if self.extra.get("warning"):
-            lines.append(f"  WARNING: {self.extra['warning']}")
-        return "\n".join(lines)
-
-
-class ADMMConvergenceError(RuntimeError):
-    """Raised when ADMM does not meet its stopping test within ``max_iter`` iterations.
-
-    Attributes:
-        result: The (unconverged) result at the last iterate, ``converged=False``.
-    """
-
-    def __init__(self, message: str, result: ADMMResult):
-        super().__init__(message)
-        self.result = result
-
-
-def _real(name: str, value: Any) -> float:
-    """``value`` as a float if it is a real number (NumPy scalars included), else raise."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number, got {value!r}.")
-    return float(value)
-
-
-def _check_penalty(r: Any) -> float:
-    try:
-        value = float(r)
-    except (TypeError, ValueError):
-        raise TypeError(f"penalty must be a positive number or 'auto', got {r!r}.") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(
-            f"penalty r must be a positive finite number, got {r!r}. Use penalty='auto' "
-            "for the automatic choice r* = 1/sqrt(λ_min λ_max), or a value of the order "
-            "of Young's modulus."
-        )
-    return value
+#: The settings :meth:`ADMMSolver.update_settings` may change between solves: they
+#: change neither r, nor the factorisation, nor the plan.
+ITERATION_SETTINGS = ("rtol", "kkt_tol", "max_iter", "alpha", "anderson", "stopping")
+_HISTORY = ("du", "dp", "fpr", "feasibility", "complementarity", "equilibrium", "active")
 
 
 class ADMMSolver:
@@ -275,248 +113,104 @@ class ADMMSolver:
 
     Args:
         problem: The contact problem.
-        penalty: Penalty parameter r > 0, or ``"auto"`` for r* = 1/sqrt(λ_min λ_max)
-            from :func:`~admm_dolfinx.penalty.estimate.estimate_penalty` (the default).
-        mode: ``"accelerated"`` (default: ``alpha``, ``anderson`` and ``stopping`` as
-            given) or ``"paper"`` (α = 1, no acceleration, relative-change test).
-        rtol: Tolerance of the stopping test; default 1e-6, or 1e-5 in paper mode.
-        max_iter: Maximum number of iterations (≥ 1).
-        alpha: Over-relaxation α ∈ (0, 2); 1 is plain ADMM.
-        anderson: Anderson memory k ≥ 0; 0 switches acceleration off.
-        stopping: ``"kkt"`` or ``"change"`` (see the module docstring).
-        penalty_tol: Eigenvalue tolerance of the iterative r* estimate (``penalty="auto"``
-            in 3D; the 2D one is exact).
-        petsc_options: Options of the step-1 solver, overriding MUMPS Cholesky
-            (``{"pc_type": "lu"}``, ``{"mat_mumps_icntl_14": 50}``, ...).
-        petsc_options_prefix: Options prefix of the step-1 KSP; a unique one by default.
-        condensed: Solve step 1 with one factorisation of A condensed onto the contact
-            dofs (:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`), where a new r
-            costs a dense factorisation of size ≈ m instead of a sparse one. ``None``
-            (default): when ``penalty="auto"`` in 2D on one process with a MUMPS
-            factorisation, which then also gives r* exactly; ``True``: always (2D
-            sizes of Γ_C, one process, MUMPS; e.g. for sweeps over r); ``False``: never.
-        polish: Active-set polishing from the dense Schur complement S_C (see the
-            module docstring). ``None`` (default): wherever S_C is computed anyway, i.e.
-            with ``penalty="auto"`` in 2D with a MUMPS factorisation (on any number of
-            processes: under MPI a private condensed factorisation serves r* and the
-            polisher), or with ``condensed=True``; ``True``: always (computing S_C if
-            need be: in 3D it is dense on a surface, which makes the factorisation
-            1.4–1.6× dearer: on one process 3–5× faster than the 3D default up to
-            557 contact nodes, slower from 2137 on, and slower under MPI, where it
-            is a second factorisation; ``benchmarks/polish_3d.py``); ``False``:
-            never. Paper mode never polishes.
-        penalty_metric: The norm of the penalty term (:mod:`admm_dolfinx.linalg.surface_metric`):
-            ``"mass"``, the paper's r M; ``"surface"``, r (M + βL_Γ) with L_Γ the
-            Laplace–Beltrami stiffness of Γ_C, which makes the iteration count
-            independent of the mesh (3D, ``penalty="auto"``: β and r are chosen by
-            :func:`~admm_dolfinx.penalty.surface.estimate_surface_penalty`, not in
-            paper mode, not with polishing); ``"auto"`` (default): ``"surface"``
-            where it applies, i.e. in 3D with ``penalty="auto"``, the accelerated
-            mode and no polishing, else ``"mass"``.
-        kkt_tol: Tolerance of the final check: after the stopping test is met, the
-            relative KKT residuals of (u, λ) are recomputed independently
-            (:func:`~admm_dolfinx.problem.kkt.compute_kkt_residuals`), and the solve has
-            converged only if they are all ≤ ``kkt_tol``. Default: ``rtol`` with the
-            ``"kkt"`` test (which it then confirms); with the ``"change"`` test, whose
-            relative changes do not bound the residuals, ``1e-2``.
+        settings: An :class:`~admm_dolfinx.admm.settings.ADMMSettings` (the keyword
+            options, if any, are applied on top of it).
+        **options: Settings by name (``penalty``, ``mode``, ``rtol``, ``kkt_tol``,
+            ``max_iter``, ``alpha``, ``anderson``, ``stopping``, ``penalty_method``,
+            ``penalty_tol``, ``penalty_metric``, ``condensed``, ``polish``,
+            ``polish_rounds``, ``petsc_options``, ``petsc_options_prefix``): see
+            :class:`~admm_dolfinx.admm.settings.ADMMSettings` for each, its default and
+            its range.
 
     Raises:
-        ValueError: For r ≤ 0, NaN or inf, ``rtol`` ≤ 0, ``max_iter`` < 1, α outside
-            (0, 2), a negative Anderson memory, ``penalty_tol`` outside (0, 1), or an
-            unknown mode or stopping test;
-            for ``condensed=True`` under MPI or without a MUMPS factorisation, and
-            ``polish=True`` without a MUMPS factorisation;
-            ``penalty_metric="surface"`` in 2D, in paper mode, with a given penalty or
-            with ``polish=True``.
+        TypeError: For an unknown setting or a value of the wrong type.
+        ValueError: For a value out of range, settings that conflict with each other
+            or with the mode, or a choice the problem cannot take (see
+            :func:`~admm_dolfinx.admm.plan.make_plan`).
 
     r* and the factorisation are computed here, once. They depend on A and NᵀMN only,
     so :meth:`solve` may be called again after
     :meth:`~admm_dolfinx.problem.contact_problem.ContactProblem.update_load` or
-    :meth:`~admm_dolfinx.problem.contact_problem.ContactProblem.update_obstacle` (load steps), warm
-    started from the previous result.
+    :meth:`~admm_dolfinx.problem.contact_problem.ContactProblem.update_obstacle` (load
+    steps), warm started from the previous result; where a moved obstacle turns the
+    contact directions, the next solve recomputes them.
 
     The solver owns PETSc objects; call :meth:`destroy` (or use it as a context
     manager) to free them deterministically.
     """
 
     def __init__(
-        self,
-        problem: ContactProblem,
-        *,
-        penalty: float | str = "auto",
-        mode: str = "accelerated",
-        rtol: float | None = None,
-        max_iter: int = 1000,
-        alpha: float = DEFAULT_ALPHA,
-        anderson: int = DEFAULT_ANDERSON,
-        stopping: str = "kkt",
-        penalty_tol: float = DEFAULT_PENALTY_TOL,
-        petsc_options: Mapping[str, Any] | None = None,
-        petsc_options_prefix: str | None = None,
-        condensed: bool | None = None,
-        polish: bool | None = None,
-        penalty_metric: str = "auto",
-        kkt_tol: float | None = None,
+        self, problem: ContactProblem, settings: ADMMSettings | None = None, **options: Any
     ):
         if not isinstance(problem, ContactProblem):
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
-        # what a rebuild needs when the problem's N changes (a moved curved obstacle)
-        self._arguments = {
-            k: v for k, v in locals().items() if k not in ("self", "problem", "__class__")
-        }
-        self._operator_version = problem.operator_version
-        if mode == "paper":
-            alpha, anderson, stopping, polish = 1.0, 0, "change", False
-            rtol = PAPER_RTOL if rtol is None else rtol
-        elif mode != "accelerated":
-            raise ValueError(f"mode must be 'accelerated' or 'paper', got {mode!r}.")
-        rtol = DEFAULT_RTOL if rtol is None else _real("rtol", rtol)
-        if not (math.isfinite(rtol) and rtol > 0.0):
-            raise ValueError(f"rtol must be a positive finite number, got {rtol!r}.")
-        if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer):
-            raise TypeError(f"max_iter must be an int, got {max_iter!r}.")
-        if max_iter < 1:
-            raise ValueError(f"max_iter must be at least 1, got {max_iter}.")
-        alpha = _real("alpha", alpha)
-        if not 0.0 < alpha < 2.0:
-            raise ValueError(f"alpha (over-relaxation) must lie in (0, 2), got {alpha}.")
-        if isinstance(anderson, bool) or not isinstance(anderson, int | np.integer):
-            raise TypeError(f"anderson (memory) must be an int, got {anderson!r}.")
-        if anderson < 0:
-            raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
-        penalty_tol = _real("penalty_tol", penalty_tol)
-        if not 0.0 < penalty_tol < 1.0:
-            raise ValueError(f"penalty_tol must lie in (0, 1), got {penalty_tol!r}.")
-        if stopping not in _STOPPING:
-            raise ValueError(f"stopping must be one of {_STOPPING}, got {stopping!r}.")
-        if kkt_tol is None:
-            kkt_tol = rtol if stopping == "kkt" else CHANGE_TEST_KKT_TOL
-        kkt_tol = _real("kkt_tol", kkt_tol)
-        if not (math.isfinite(kkt_tol) and kkt_tol > 0.0):
-            raise ValueError(f"kkt_tol must be a positive finite number, got {kkt_tol!r}.")
-        if stopping == "kkt" and kkt_tol < rtol:
-            raise ValueError(
-                f"kkt_tol = {kkt_tol:g} is below rtol = {rtol:g}: with the 'kkt' stopping "
-                "test the loop stops at rtol, so the final check could never pass. Lower "
-                "rtol instead."
-            )
-        if penalty_metric not in _METRICS:
-            raise ValueError(f"penalty_metric must be one of {_METRICS}, got {penalty_metric!r}.")
-        for name, value in (("condensed", condensed), ("polish", polish)):
-            if value is not None and not isinstance(value, bool):
-                raise TypeError(f"{name} must be None (automatic), True or False, got {value!r}.")
-        auto = isinstance(penalty, str) and penalty == "auto"
-        if not auto:
-            penalty = _check_penalty(penalty)
-        if penalty_metric == "surface":
-            reasons = [
-                (problem.gdim != 3, "is for 3D bodies (a contact surface); this one is 2D"),
-                (not auto, "chooses r and β itself: pass penalty='auto'"),
-                (mode == "paper", "is not the paper's algorithm: use mode='accelerated'"),
-                (polish is True, "and polish=True exclude each other"),
-            ]
-            for failed, reason in reasons:
-                if failed:
-                    raise ValueError(
-                        f"penalty_metric='surface' {reason} (or pass penalty_metric='mass')."
-                    )
+        if settings is not None and not isinstance(settings, ADMMSettings):
+            raise TypeError(f"settings must be ADMMSettings, got {type(settings).__name__}.")
+        #: The validated settings (frozen).
+        self.settings: ADMMSettings = (
+            settings.replace(**options) if settings is not None else ADMMSettings.create(**options)
+        )
         self.problem = problem
-        self.mode = mode
-        self.rtol = rtol
-        self.max_iter = int(max_iter)
-        self.alpha = alpha
-        self.anderson = int(anderson)
-        self.stopping = stopping
-        self.kkt_tol = kkt_tol
-        self._petsc_options = dict(petsc_options or {})
-        self.prefix = petsc_options_prefix or unique_prefix("admm_")
-        # S_C, the Schur complement of A onto the contact dofs, gives r* exactly (2D)
-        # and polishing; solving with it (condensed) needs one process
-        explicit = condensed is True or polish is True
-        schur_possible = condensed_factor_applies(problem, petsc_options, any_dimension=explicit)
-        serial = problem.comm.size == 1
-        if condensed is True and not (serial and schur_possible):
-            raise ValueError(
-                "condensed=True needs one process and a MUMPS factorisation (PETSc "
-                "solves with a Schur complement serially only); pass condensed=None."
-            )
-        if polish is True and not schur_possible:
-            raise ValueError(
-                "polish=True needs the Schur complement of A onto the contact dofs, "
-                "from a MUMPS factorisation (ksp_type preonly, pc_type cholesky or lu); "
-                f"got petsc_options={dict(petsc_options or {})}. Pass polish=None."
-            )
-        if condensed is None:
-            condensed = serial and schur_possible and (auto or polish is True)
-        #: Active-set polishing (None when off).
+        self.operator: PenalisedOperator | CondensedOperator | None = None
         self.polisher: ActiveSetPolish | SparsePolish | None = None
+        self._step: MassMetricStep | SurfaceMetricStep = MassMetricStep()
+        self._metric: SurfaceMetric | None = None
+        self._build()
+
+    def _build(self) -> None:
+        """Plan, factorise and find r (collective); on a failure free what was built."""
+        s, problem = self.settings, self.problem
+        #: What the solver chose and why.
+        self.plan: SolverPlan = make_plan(problem, s)
+        plan, prefixes = self.plan, s.prefixes
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
         #: β and r of the surface metric (None with the paper's metric r M).
         self.surface_penalty: SurfacePenalty | None = None
-        self._metric: SurfaceMetric | None = None
-        self._projection: SurfaceProjection | None = None
-        self.operator: PenalisedOperator | CondensedOperator | None = None
-        # The inner factorisations of r* (layers, the body at r_a) take the step-1
-        # options only if those describe a factorisation too (MUMPS's memory options);
-        # an iterative step-1 solver's options are not theirs.
-        factor_opts = dict(petsc_options or {}) if is_factorisation(petsc_options) else None
+        self._operator_version = problem.operator_version
         private = None
         try:
-            operator_class = CondensedOperator if condensed else PenalisedOperator
-            self.operator = operator_class(problem, self.prefix, petsc_options)
-            # where the step-1 operator is not condensed, a private condensed
-            # factorisation serves r* (2D) and polishing, and is freed once S_C is read
-            schur_source = self.operator if condensed else None
-            if schur_source is None and schur_possible and polish is not False and (auto or polish):
-                private = CondensedOperator(problem, self.prefix + "schur_", petsc_options)
+            step1 = CondensedOperator if plan.step1 == "condensed" else PenalisedOperator
+            self.operator = step1(problem, prefixes["step1"], s.petsc_options)
+            schur_source = self.operator if plan.step1 == "condensed" else None
+            if plan.private_schur:  # S_C for r* and polishing; freed once read
+                private = CondensedOperator(problem, prefixes["schur"], s.petsc_options)
                 schur_source = private
-            if schur_source is not None and polish is not False:
-                self.polisher = ActiveSetPolish.from_operator(problem, schur_source)
-            elif (
-                polish is not False
-                and (auto or polish)
-                and problem.gdim == 2
-                and factor_opts is not None
-            ):
-                # 2D contact zones too large for the dense S_C: the same polishing with
-                # sparse factorisations of the body
-                self.polisher = SparsePolish(problem, self.prefix + "polish_", factor_opts)
-            surface = penalty_metric == "surface" or (
-                penalty_metric == "auto"
-                and problem.gdim == 3
-                and auto
-                and mode == "accelerated"
-                and self.polisher is None
-            )
+            if plan.polish == "dense":
+                self.polisher = ActiveSetPolish.from_operator(
+                    problem, schur_source, rounds=s.polish_rounds
+                )
+            elif plan.polish == "sparse":
+                self.polisher = SparsePolish(problem, prefixes["polish"], plan.factor_options)
             self._time_schur = private.timings["factorization"] if private else 0.0
-            if auto:
-                # r* gets this solver's own operator: a condensed one gives r* densely
-                # and serves the ADMM at r* with no new sparse factorisation. Otherwise,
-                # at the default tolerance r* factorises nothing of the whole body; where
-                # it does (tight tolerance, floating body: at an auxiliary r_a), the
-                # factorisation at r* below reuses its symbolic analysis.
-                shared = schur_source or (self.operator if factor_opts is not None else None)
+            penalty = s.penalty
+            if plan.penalty != "given":
+                # a condensed operator gives r* densely and serves the ADMM at r*; a
+                # factorised one shares its symbolic analysis with r*'s factorisations
+                shared = schur_source or (
+                    self.operator if plan.factor_options is not None else None
+                )
                 self.penalty_estimate = estimate_penalty(
                     problem,
-                    tol=penalty_tol,
+                    tol=s.penalty_tol,
+                    method=plan.penalty,
                     operator=shared,
-                    petsc_options=factor_opts,
-                    petsc_options_prefix=self.prefix + "penalty_",
+                    petsc_options=plan.factor_options,
+                    petsc_options_prefix=prefixes["penalty"],
                 )
                 penalty = self.penalty_estimate.r
-            if surface:
+            if plan.metric == "surface":
                 self._metric = SurfaceMetric(problem)
                 self.surface_penalty = estimate_surface_penalty(
                     problem,
                     self._metric,
                     self.penalty_estimate,
-                    prefix=self.prefix + "surface_",
-                    petsc_options=factor_opts,
+                    prefix=prefixes["surface"],
+                    petsc_options=plan.factor_options,
                 )
                 beta = self.surface_penalty.beta
                 self.operator.use_penalty_matrix(self._metric.penalty_matrix(beta), "Nᵀ(M + βL_Γ)N")
-                self._projection = SurfaceProjection(self._metric, beta)
+                self._step = SurfaceMetricStep(self._metric, beta)
                 penalty = self.surface_penalty.r
             self.set_penalty(penalty)
         except BaseException:
@@ -546,30 +240,41 @@ class ADMMSolver:
         Args:
             r: Penalty parameter, > 0.
         """
-        r = _check_penalty(r)
+        r = check_penalty(r)
         self.operator.set_penalty(r)
         if self.polisher is not None:
             self.polisher.set_penalty(r)
+
+    def update_settings(self, **changes: Any) -> None:
+        """Change settings of the iteration between solves (OSQP's verb).
+
+        Only :data:`ITERATION_SETTINGS` can change: the others set r, the factors or
+        the plan (build a new solver for them).
+
+        Raises:
+            ValueError: For another setting, or an invalid value.
+        """
+        fixed = [name for name in changes if name not in ITERATION_SETTINGS]
+        if fixed:
+            raise ValueError(
+                f"update_settings changes {ITERATION_SETTINGS} only; {fixed} set r, the "
+                "factorisation or the plan: build a new ADMMSolver with them."
+            )
+        self.settings = self.settings.replace(**changes)
 
     @property
     def ksp(self) -> PETSc.KSP:
         """The step-1 KSP (factorised A + rNᵀMN, or A condensed onto Γ_C)."""
         return self.operator.ksp
 
-    @property
-    def settings(self) -> dict[str, Any]:
-        """The settings that define the iteration."""
-        return {
-            "mode": self.mode,
-            "alpha": self.alpha,
-            "anderson": self.anderson,
-            "stopping": self.stopping,
-            "rtol": self.rtol,
-            "kkt_tol": self.kkt_tol,
-            "max_iter": self.max_iter,
-            "polish": self.polish,
-            "penalty_metric": "mass" if self._projection is None else "surface",
-        }
+    def summary(self) -> str:
+        """The plan and the penalty, before (or without) a solve."""
+        r = f"r = {self.penalty:.6g}"
+        if self.surface_penalty is not None:
+            r += f" in the surface metric (β = {self.surface_penalty.beta:.4g})"
+        elif self.penalty_estimate is not None:
+            r += f" (r* by the {self.plan.penalty} method)"
+        return f"ADMMSolver: {self.plan.describe()}; {r}; settings: {self.settings.mode} mode"
 
     # ------------------------------------------------------------------ solve
     def _warm_state(self, previous: ADMMResult, u_start: PETSc.Vec) -> np.ndarray:
@@ -595,6 +300,32 @@ class ADMMSolver:
         previous.u.x.petsc_vec.copy(u_start)
         p = np.minimum(problem.apply_normal(u_start), problem.contact.gap)
         return np.concatenate([p, np.maximum(previous.multiplier, 0.0)])
+
+    def _prepare(self) -> None:
+        """Bring the solver up to date with its problem before a solve; collective."""
+        problem = self.problem
+        if self.operator is None or self.operator.ksp is None:
+            raise RuntimeError(
+                "This ADMMSolver has been destroyed (destroy() or the end of its with "
+                "block); create a new one."
+            )
+        if problem.A is None:
+            raise RuntimeError(
+                "The ContactProblem of this solver has been destroyed; destroy the "
+                "problem only after its solvers are done."
+            )
+        if problem.sync_load():  # L's data or the Dirichlet values changed since
+            logger.info("ADMM: the load data changed; reassembled the load")
+        problem.check_obstacle_unchanged()
+        if problem.operator_version != self._operator_version:
+            # update_obstacle turned the contact directions: N, and with it r*, the
+            # step-1 factorisation and the polisher's data, changed
+            logger.info("ADMM: the contact directions changed; recomputing r and the factors")
+            if self.settings.penalty != "auto":
+                self.settings = self.settings.replace(penalty=self.penalty)
+            self.destroy()
+            self._step = MassMetricStep()
+            self._build()
 
     def solve(
         self,
@@ -627,168 +358,69 @@ class ADMMSolver:
             RuntimeError: If a linear solve fails, or the solver or its problem has
                 been destroyed.
         """
-        problem = self.problem
-        if self.operator.ksp is None:
-            raise RuntimeError(
-                "This ADMMSolver has been destroyed (destroy() or the end of its with "
-                "block); create a new one."
-            )
-        if problem.A is None:
-            raise RuntimeError(
-                "The ContactProblem of this solver has been destroyed; destroy the "
-                "problem only after its solvers are done."
-            )
-        if problem.sync_load():  # L's data or the Dirichlet values changed since
-            logger.info("ADMM: the load data changed; reassembled the load")
-        problem.check_obstacle_unchanged()
-        if problem.operator_version != self._operator_version:
-            # update_obstacle turned the contact directions: N, and with it r*, the
-            # step-1 factorisation and the polisher's data, changed
-            logger.info("ADMM: the contact directions changed; recomputing r and the factors")
-            arguments = dict(self._arguments)
-            if self.penalty_estimate is None and self.surface_penalty is None:
-                arguments["penalty"] = self.penalty
-            self.destroy()
-            self.__init__(problem, **arguments)
-        c = problem.contact
-        r, alpha = self.penalty, self.alpha
-        g = c.gap
-        m = g.size
+        self._prepare()
         t_start = time.perf_counter()
-        mass = c.mass
+        s, problem, c = self.settings, self.problem, self.problem.contact
+        r, alpha, g, m = self.penalty, s.alpha, c.gap, c.gap.size
         # |NᵀM e_j| on the free dofs: turns nodal values into the equilibrium residual
-        force = np.linalg.norm(c.free_normals, axis=1) * mass
+        force = np.linalg.norm(c.free_normals, axis=1) * c.mass
         # W-norm of z = (p, λ): p weighted by M, λ by M/r² (both in displacement units)
-        weights = np.concatenate([mass, mass / r**2])
-
-        def wnorm(vec):
-            return weighted_norm(vec, weights, problem.comm)
-
-        mixer = AndersonMixer(self.anderson, weights, problem.comm) if self.anderson else None
-        load_norm = problem.load_norm
+        weights = np.concatenate([c.mass, c.mass / r**2])
+        mixer = AndersonMixer(s.anderson, weights, problem.comm) if s.anderson else None
+        step, polisher = self._step, self.polisher
 
         u = fem.Function(problem.V, name="displacement")
         x = u.x.petsc_vec
-        x_old = problem.create_vector()
-        b0 = problem.create_vector()
-        b = problem.create_vector()
+        x_old, b0, b = (problem.create_vector() for _ in range(3))
         problem.assemble_rhs(r, b0)
-        projection = self._projection
-        if projection is not None:  # steps 2-3 in the metric r(M + βL_Γ)
-            projection.reset(g)
-            if self._metric.dirichlet_lift(b):
-                b0.axpy(r * projection.beta, b)
-
+        step.reset(g, b0, b, r)
         if warm_start is None:
             x_old.set(0.0)
             z = np.concatenate([np.minimum(0.0, g), np.zeros(m)])  # state (p, λ)
         else:
             z = self._warm_state(warm_start, x_old)
-        p_prev = z[:m].copy()
-        keys = (
-            "du",
-            "dp",
-            "fpr",
-            "feasibility",
-            "complementarity",
-            "equilibrium",
-            "active",
-            "accelerated",
-        )
-        history: dict[str, list[float]] = {key: [] for key in keys}
-        status = "max_iter"
-        kkt: KKTResiduals | None = None
-        iterations = 0
-        accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
-        proposal = _PLAIN  # what z is: a plain step, or an Anderson or polished proposal
-        polisher = self.polisher
         if polisher is not None:
             polisher.reset()
-        polished_at = None
-        lam = z[m:]
-        logger.info("ADMM: m = %d contact nodes, r = %.6g, %s", c.num_global, r, self.settings)
+        p_prev, lam = z[:m].copy(), z[m:]
+        history: dict[str, list[float]] = {key: [] for key in (*_HISTORY, "accelerated")}
+        status, kkt, iterations, polished_at = "max_iter", None, 0, None
+        accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
+        proposal = _PLAIN  # what z is: a plain step, or an Anderson or polished proposal
+        logger.info("ADMM: m = %d contact nodes, r = %.6g, %s", c.num_global, r, self.plan)
         try:
             with Timer("admm_dolfinx: iterations"):
                 t0 = time.perf_counter()
-                for k in range(1, self.max_iter + 1):
+                for k in range(1, s.max_iter + 1):
                     iterations = k
                     p_in, lam_in = z[:m], z[m:]
-                    # step 1: (A + rK) u = f + NᵀM(r p − λ)
+                    # step 1: (A + NᵀRN) u = f + Nᵀ(R p − M λ)
                     b0.copy(b)
                     problem.add_normal_force(b, r * p_in - lam_in)
-                    if projection is not None:  # Nᵀ R p = r NᵀM p + r β Nᵀ L_Γ p
-                        self._metric.add_surface_force(b, p_in, r * projection.beta)
+                    step.add_force(b, p_in, r)
                     self.operator.solve(b, x)
                     nu = problem.apply_normal(x)
-                    # steps 2-3 with over-relaxation
-                    xi = alpha * nu + (1.0 - alpha) * p_in
-                    if projection is None:
-                        with np.errstate(invalid="ignore"):
-                            p = np.minimum(xi + lam_in / r, g)
-                            lam = np.maximum(lam_in + r * (xi - g), 0.0)
-                        # A u − f + NᵀMλ⁺ = NᵀM d at the contact nodes (Dirichlet rows aside)
-                        d = r * (p_in - nu) + (lam - lam_in)
-                    else:
-                        p, lam, d = projection(xi, lam_in, p_in, nu, r)
+                    # steps 2-3, with over-relaxation
+                    p, lam, d = step(alpha * nu + (1.0 - alpha) * p_in, lam_in, p_in, nu, r)
                     Tz = np.concatenate([p, lam])
-
-                    # residuals of (u, λ⁺) and of the fixed-point map
-                    res = wnorm(Tz - z)
-                    fpr = _ratio(res, wnorm(Tz))
-                    x_old.axpy(-1.0, x)
-                    du = _ratio(x_old.norm(), x.norm())
-                    x.copy(x_old)
-                    dp = _ratio(problem.global_norm(p - p_prev), problem.global_norm(p))
-                    p_prev = p
-                    u_scale = x.norm(PETSc.NormType.NORM_INFINITY)
-                    feas, comp = gap_residuals(problem, nu, lam, u_scale)
-                    eq = _ratio(
-                        problem.global_norm(force * d),
-                        max(load_norm, problem.global_norm(force * lam)),
+                    residuals = self._residuals(
+                        x, x_old, z, Tz, p, p_prev, nu, lam, d, force, weights
                     )
-                    active = int(problem.comm.allreduce(int(np.count_nonzero(lam > 0.0))))
-
+                    p_prev = p
                     # safeguard: an extrapolated state must lower the fixed-point residual
                     # (written as "not <" so that a NaN residual is rejected too)
+                    res = residuals["res"]
                     rejected = proposal != _PLAIN and accepted is not None and not res < accepted[1]
                     if proposal == _POLISHED and not rejected:
                         polished_at = k
-                    for key, val in zip(
-                        keys,
-                        (du, dp, fpr, feas, comp, eq, active, _REJECTED if rejected else proposal),
-                        strict=True,
-                    ):
-                        history[key].append(val)
-                    logger.info(
-                        "ADMM %4d: fpr %.2e feas %.2e comp %.2e eq %.2e du %.2e dp %.2e "
-                        "active %d%s",
-                        k,
-                        fpr,
-                        feas,
-                        comp,
-                        eq,
-                        du,
-                        dp,
-                        active,
-                        " (proposal rejected)" if rejected else _NOTES[proposal],
-                    )
-                    if self.stopping == "change":
-                        done = du <= self.rtol and dp <= self.rtol
-                    else:
-                        done = max(fpr, feas, comp, eq) <= self.rtol
-                    if done:
-                        # the test's residuals come from identities that assume exact
+                    self._record(history, k, residuals, _REJECTED if rejected else proposal)
+                    if self._test_met(residuals):
+                        # the test's residuals rest on identities that assume exact
                         # step-1 solves: confirm them independently before stopping
                         kkt = compute_kkt_residuals(problem, x, lam)
-                        status = self._verdict(kkt, eq)
+                        status = self._verdict(kkt, residuals["equilibrium"])
                         if status != "continue":
                             break
-                        logger.info(
-                            "ADMM %4d: the test was met, but the recomputed KKT residual "
-                            "%.2e exceeds kkt_tol: going on",
-                            k,
-                            kkt.max(),
-                        )
+                        logger.info("ADMM %4d: test met, recomputed KKT %.2e: on", k, kkt.max())
                         kkt = None
                     if callback is not None and self._ask_callback(callback, k, x, lam):
                         status = "callback"
@@ -796,9 +428,7 @@ class ADMMSolver:
                     if rejected:
                         z, proposal = accepted[0].copy(), _PLAIN  # the plain step instead
                         continue
-                    accepted = (Tz, res)
-                    proposal = _PLAIN
-                    z = Tz
+                    accepted, proposal, z = (Tz, res), _PLAIN, Tz
                     if mixer is not None:
                         candidate = mixer.update(np.concatenate([p_in, lam_in]), Tz)
                         if candidate is not None:
@@ -812,7 +442,6 @@ class ADMMSolver:
                             z, proposal = np.concatenate(exact), _POLISHED
                 t_iter = time.perf_counter() - t0
             u.x.scatter_forward()
-
             t0 = time.perf_counter()
             if kkt is None:
                 kkt = compute_kkt_residuals(problem, x, lam)
@@ -820,67 +449,125 @@ class ADMMSolver:
         finally:
             for vec in (x_old, b0, b):
                 vec.destroy()
-
-        pressure = problem.pressure_function(lam)
-        timings = {
-            "assembly": problem.timings.get("assembly", 0.0),
-            "penalty": (self.penalty_estimate.time if self.penalty_estimate else 0.0)
-            + (self.surface_penalty.time if self.surface_penalty else 0.0)
-            + self._time_schur,
-            "operator": self.operator.timings["operator"]
-            + (self.polisher.setup_time if self.polisher else 0.0),
-            "factorization": self.operator.timings["factorization"],
-            "iterations": t_iter,
-            "kkt": t_kkt,
-        }
-        timings["total"] = (
-            timings["assembly"]
-            + timings["penalty"]
-            + timings["operator"]
-            + timings["factorization"]
-            + time.perf_counter()
-            - t_start
+        result = self._result(
+            u, lam, status, iterations, history, kkt, polished_at, t_iter, t_kkt, t_start
         )
-        converged = status == "converged"
-        result = ADMMResult(
-            u=u,
-            pressure=pressure,
-            converged=converged,
-            status=status,
-            iterations=iterations,
-            penalty=r,
-            history=history,
-            timings=timings,
-            kkt=kkt,
-            multiplier=lam,
-            num_active=history["active"][-1],
-            num_contact_nodes=c.num_global,
-            settings=self.settings,
-            extra={
-                "max_pressure": problem.global_norm(lam, np.inf),
-                "penalty_estimate": self.penalty_estimate.as_dict()
-                if self.penalty_estimate
-                else None,
-                "surface_penalty": self.surface_penalty.as_dict() if self.surface_penalty else None,
-                "projection": projection.statistics() if projection is not None else None,
-                "polish": {
-                    "polished_at": polished_at,
-                    "attempts": polisher.attempts,
-                    "rounds": polisher.rounds,
-                    "skipped": polisher.skipped,
-                    "time": polisher.time,
-                }
-                if polisher is not None
-                else None,
-            },
-        )
-        result.extra["warning"] = self._slow_convergence_warning(history, converged)
-        if result.extra["warning"]:
-            logger.warning("%s", result.extra["warning"])
+        if result.warning:
+            logger.warning("%s", result.warning)
         if status not in ("converged", "callback"):
             raise ADMMConvergenceError(self._failure_message(result), result)
         logger.info("%s", result.summary())
         return result
+
+    # ------------------------------------------------------------ the loop's parts
+    def _residuals(self, x, x_old, z, Tz, p, p_prev, nu, lam, d, force, weights) -> dict:
+        """The residuals of one iteration (and x_old := x); collective."""
+        problem = self.problem
+        res = weighted_norm(Tz - z, weights, problem.comm)
+        fpr = _ratio(res, weighted_norm(Tz, weights, problem.comm))
+        x_old.axpy(-1.0, x)
+        du = _ratio(x_old.norm(), x.norm())
+        x.copy(x_old)
+        dp = _ratio(problem.global_norm(p - p_prev), problem.global_norm(p))
+        u_scale = x.norm(PETSc.NormType.NORM_INFINITY)
+        feas, comp = gap_residuals(problem, nu, lam, u_scale)
+        eq = _ratio(
+            problem.global_norm(force * d),
+            max(problem.load_norm, problem.global_norm(force * lam)),
+        )
+        active = int(problem.comm.allreduce(int(np.count_nonzero(lam > 0.0))))
+        return {
+            "res": res,
+            "fpr": fpr,
+            "du": du,
+            "dp": dp,
+            "feasibility": feas,
+            "complementarity": comp,
+            "equilibrium": eq,
+            "active": active,
+        }
+
+    def _record(self, history: dict, k: int, residuals: dict, what: int) -> None:
+        for key in _HISTORY:
+            history[key].append(residuals[key])
+        history["accelerated"].append(what)
+        logger.info(
+            "ADMM %4d: fpr %.2e feas %.2e comp %.2e eq %.2e du %.2e dp %.2e active %d%s",
+            k,
+            *(residuals[key] for key in ("fpr", "feasibility", "complementarity")),
+            residuals["equilibrium"],
+            residuals["du"],
+            residuals["dp"],
+            residuals["active"],
+            " (proposal rejected)" if what == _REJECTED else _NOTES[what],
+        )
+
+    def _test_met(self, residuals: dict) -> bool:
+        s = self.settings
+        if s.stopping == "change":
+            return residuals["du"] <= s.rtol and residuals["dp"] <= s.rtol
+        keys = ("fpr", "feasibility", "complementarity", "equilibrium")
+        return max(residuals[key] for key in keys) <= s.rtol
+
+    def _result(
+        self, u, lam, status, iterations, history, kkt, polished_at, t_iter, t_kkt, t_start
+    ):
+        problem, polisher = self.problem, self.polisher
+        penalty_time = (
+            (self.penalty_estimate.time if self.penalty_estimate else 0.0)
+            + (self.surface_penalty.time if self.surface_penalty else 0.0)
+            + self._time_schur
+        )
+        phases = {
+            "assembly": problem.timings.get("assembly", 0.0),
+            "penalty": penalty_time,
+            "operator": self.operator.timings["operator"]
+            + (polisher.setup_time if polisher is not None else 0.0),
+            "factorization": self.operator.timings["factorization"],
+            "iterations": t_iter,
+            "kkt": t_kkt,
+        }
+        phases["total"] = (
+            phases["assembly"]
+            + phases["penalty"]
+            + phases["operator"]
+            + phases["factorization"]
+            + time.perf_counter()
+            - t_start
+        )
+        polish = None
+        if polisher is not None:
+            polish = PolishInfo(
+                kind=self.plan.polish,
+                polished_at=polished_at,
+                attempts=polisher.attempts,
+                rounds=polisher.rounds,
+                skipped=polisher.skipped,
+                time=polisher.time,
+            )
+        converged = status == "converged"
+        return ADMMResult(
+            u=u,
+            pressure=problem.pressure_function(lam),
+            converged=converged,
+            status=status,
+            iterations=iterations,
+            penalty=self.penalty,
+            history=history,
+            timings=Timings(**phases),
+            kkt=kkt,
+            multiplier=lam,
+            num_active=history["active"][-1],
+            num_contact_nodes=problem.contact.num_global,
+            settings=self.settings,
+            plan=self.plan,
+            max_pressure=problem.global_norm(lam, np.inf),
+            penalty_estimate=self.penalty_estimate,
+            surface_penalty=self.surface_penalty,
+            polish=polish,
+            projection=self._step.statistics(),
+            warning=self._slow_convergence_warning(history, converged),
+        )
 
     # ------------------------------------------------------------------ verdicts
     def _verdict(self, kkt: KKTResiduals, loop_equilibrium: float) -> str:
@@ -892,11 +579,11 @@ class ADMMSolver:
             (the equilibrium identity of the loop is off: the step-1 solves are not
             exact); ``"inaccurate"`` (the change test stopped a stagnated iteration).
         """
-        if kkt.max() <= self.kkt_tol:
+        if kkt.max() <= self.settings.kkt_tol:
             return "converged"
-        if kkt.equilibrium > 10.0 * max(self.kkt_tol, loop_equilibrium):
+        if kkt.equilibrium > 10.0 * max(self.settings.kkt_tol, loop_equilibrium):
             return "inexact_step1"
-        return "inaccurate" if self.stopping == "change" else "continue"
+        return "inaccurate" if self.settings.stopping == "change" else "continue"
 
     def _ask_callback(self, callback, k: int, x: PETSc.Vec, lam: np.ndarray) -> bool:
         """The user's callback on every rank; True if any rank asks to stop; collective."""
@@ -919,7 +606,8 @@ class ADMMSolver:
                 f"ADMM's stopping test was met after {result.iterations} iterations, but the "
                 f"equilibrium residual recomputed from (u, λ) is {k.equilibrium:.2e} where "
                 f"the iteration's identity gives {h['equilibrium'][-1]:.2e}: the step-1 "
-                f"solves are not exact (petsc_options {self._petsc_options}). Use the "
+                "solves are not exact (petsc_options "
+                f"{dict(self.settings.petsc_options)}). Use the "
                 "default factorisation, or tighten the iterative solver (ksp_rtol ≤ 1e-10). "
                 "The partial result is attached as `err.result`."
             )
@@ -927,7 +615,7 @@ class ADMMSolver:
             return (
                 f"ADMM's relative-change test was met after {result.iterations} iterations "
                 f"at r = {r:.6g}, but the iteration had stagnated, not converged: {residuals}, "
-                f"above kkt_tol = {self.kkt_tol:g}. "
+                f"above kkt_tol = {self.settings.kkt_tol:g}. "
                 + (
                     "r set by hand is far from the balanced penalty: use penalty='auto'. "
                     if hand
@@ -942,8 +630,9 @@ class ADMMSolver:
             else "increase max_iter"
         )
         return (
-            f"ADMM did not converge in {self.max_iter} iterations at r = {r:.6g} "
-            f"({self.stopping!r} test at rtol = {self.rtol:.1e}; last residuals: fpr "
+            f"ADMM did not converge in {self.settings.max_iter} iterations at r = {r:.6g} "
+            f"({self.settings.stopping!r} test at rtol = {self.settings.rtol:.1e}; last "
+            "residuals: fpr "
             f"{h['fpr'][-1]:.2e}, equilibrium {h['equilibrium'][-1]:.2e}, du "
             f"{h['du'][-1]:.2e}, dp {h['dp'][-1]:.2e}; {residuals}): {advice}. The partial "
             "result is attached as `err.result`."
@@ -971,16 +660,12 @@ class ADMMSolver:
 
     # ------------------------------------------------------------------ lifetime
     def destroy(self) -> None:
-        """Free the KSP, the step-1 operator and the surface metric's objects; collective."""
-        if getattr(self, "operator", None) is not None:
-            self.operator.destroy()
-        if getattr(self, "polisher", None) is not None:
-            self.polisher.destroy()
-        for name in ("_projection", "_metric"):
+        """Free the KSP, the step-1 operator, the polisher and the surface metric; collective."""
+        for name in ("operator", "polisher", "_step", "_metric"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.destroy()
-                setattr(self, name, None)
+        self.polisher = self._metric = None
 
     def __enter__(self) -> ADMMSolver:
         return self

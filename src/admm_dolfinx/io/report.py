@@ -24,7 +24,7 @@ __all__ = ["result_summary", "write_scene_outputs"]
 
 def result_summary(scene: Scene, problem: ContactProblem, result: ADMMResult) -> dict[str, Any]:
     """A JSON-ready summary of a solve."""
-    estimate = result.extra.get("penalty_estimate")
+    estimate = result.penalty_estimate.as_dict() if result.penalty_estimate else None
     return {
         "scene": scene.name,
         "info": scene.info,
@@ -36,9 +36,11 @@ def result_summary(scene: Scene, problem: ContactProblem, result: ADMMResult) ->
         "penalty": result.penalty,
         "penalty_estimate": estimate,
         "active_nodes": result.num_active,
-        "max_pressure": result.extra["max_pressure"],
+        "max_pressure": result.max_pressure,
         "kkt": result.kkt.as_dict(),
-        "timings": result.timings,
+        "timings": result.timings.as_dict(),
+        "settings": result.settings.as_dict(),
+        "plan": result.plan.describe() if result.plan is not None else None,
     }
 
 
@@ -104,7 +106,7 @@ def write_scene_outputs(
             ]
             # the sweep penalises in the paper's metric r M; a surface-metric result's
             # r (of r(M + βL_Γ)) is not a point of this curve
-            if result.settings.get("penalty_metric") != "surface":
+            if result.plan is None or result.plan.metric != "surface":
                 marks.append(
                     (
                         f"r = {result.penalty:.4g}: {result.iterations} it.",

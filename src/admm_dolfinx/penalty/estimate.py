@@ -6,39 +6,27 @@ non-zero eigenvalues of A⁻¹NᵀMN, i.e. of the m × m pencil on the contact d
     M w = λ S w,     S = Schur complement of A onto the contact normal dofs,
 
 so the best fixed r balances the two extremes: r* = 1/sqrt(λ_min λ_max). This module
-chooses between two methods and assembles the estimate.
+is the one entry point; the method is an explicit choice (``method``):
 
-**Dense** (the default in 2D with a MUMPS factorisation): one factorisation of A
-condensed onto the contact dofs (:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`)
-gives the dense Schur complement S_C, from which the whole pencil follows: its ends
-with SLEPc on the dense m × m compliance
-(:func:`~admm_dolfinx.penalty.dense.extremes_from_schur`). r* is exact, and the
-ADMM then solves with the same factorisation, so r* costs only the dense eigenvalue
-problem beyond it.
+* ``"dense"`` (the default in 2D where the condensed factorisation is cheap): one
+  factorisation of A condensed onto the contact dofs
+  (:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`) gives the dense Schur
+  complement S_C, from which the whole pencil follows
+  (:func:`~admm_dolfinx.penalty.dense.extremes_from_schur`). Exact; the same on any
+  number of processes to round-off; the ADMM then solves with the same factorisation.
+* ``"local"`` (the default elsewhere): no factorisation of the whole body. λ_min on
+  layers of cells along Γ_C, λ_max by multigrid LOBPCG on the full-space pencil
+  (:mod:`admm_dolfinx.penalty.extremes`); to the eigenvalue tolerance ``tol``, and,
+  through the multigrid's aggregates, dependent on the partition at that level.
+* ``"factorised"``: both ends by Krylov–Schur on operators applied with factorisations
+  of the body (Â for the exact Schur complement, A + r_a NᵀMN for λ_max), in the
+  solver's own operator so that the symbolic analysis is shared with step 1; exact
+  to ``tol`` and the same on any partition to round-off. A floating body's λ_max is
+  always computed this way (the multigrid needs a positive definite A).
 
-**Iterative** (3D, where S_C is too large to be dense, or another step-1 solver):
-each extreme is computed as the *largest* eigenvalue of a symmetric operator (the
-large end converges in tens of applications; asking for the small end of the wrong
-operator takes hundreds): an m × m one with SLEPc's Krylov–Schur, or, for λ_max at
-the default tolerance, the full-space pencil with LOBPCG. How, and at which
-tolerance, is described in :mod:`admm_dolfinx.penalty.extremes`.
-
-Factorisations of the whole body, iteratively: none at the default tolerance (the ADMM
-then factorises A + r* NᵀMN once).  At tolerances ≤ 1e-6, Â and A + r_a NᵀMN, which have
-A's sparsity pattern, are factorised in one
-:class:`~admm_dolfinx.linalg.operators.PenalisedOperator` - the one the ADMM then
-refactorises at r* - so the symbolic analysis (ordering) is computed once and each
-costs one numeric factorisation.  :attr:`PenaltyEstimate.solves` counts operator
-applications: substitutions with a factorisation, or AMG V-cycles.
-
-Partition dependence: the dense 2D r* is the same on any number of processes to
-round-off (tested to 1e-10; under MPI the condensed factorisation serves only r*
-and polishing, because PETSc solves with a Schur complement serially only, and the
-ADMM factorises A + r*K). Iteratively, at tolerances ≤ 1e-6, r* is the same on any number of
-processes to round-off (tested to 1e-6 under ``mpiexec -n 2``). At the default
-tolerance the multigrid aggregates depend on the partition, and r* with them, by about
-the error of θ (a few 1e-5 measured; tested ≤ 2e-4 under ``mpiexec -n 2``);
-the ADMM converges to the same solution.
+:attr:`PenaltyEstimate.solves` counts operator applications: substitutions with a
+factorisation, or AMG V-cycles. ``python benchmarks/penalty_accuracy.py`` measures
+the methods against the dense pencil, ``python benchmarks/penalty_cost.py`` their cost.
 """
 
 from __future__ import annotations
@@ -56,7 +44,6 @@ from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import RankLayout, run_on_rank0
 from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.linalg.operators import PenalisedOperator
-from admm_dolfinx.linalg.petsc import unique_prefix
 from admm_dolfinx.penalty.contact_operators import (
     ContactSpace,
     SchurOperator,
@@ -80,12 +67,8 @@ logger = get_logger(__name__)
 #: see the README for how little it moves r*.
 DEFAULT_PENALTY_TOL = 1e-2
 
-#: Above this eigenvalue tolerance λ_min comes from layers along Γ_C (no factorisation
-#: of the whole body); at or below it, from the exact Schur complement.
-_LOCAL_MAX_TOL = 1e-6
-
 #: ``method`` values of :func:`estimate_penalty`.
-PENALTY_METHODS = ("auto", "dense", "iterative")
+PENALTY_METHODS = ("auto", "dense", "local", "factorised")
 
 
 @dataclass
@@ -146,17 +129,19 @@ def estimate_penalty(
     Args:
         problem: The contact problem.
         tol: Relative tolerance of both eigenvalue solves (SLEPc ``eps_tol``) of the
-            iterative method; the dense one is exact.
+            ``"local"`` and ``"factorised"`` methods; the dense one is exact.
         max_it: Maximum Krylov–Schur restarts.
-        method: ``"dense"`` (from the condensed factorisation: exact, 2D-sized Γ_C),
-            ``"iterative"`` (SLEPc, see the module docstring) or ``"auto"``: dense in
-            2D with a MUMPS factorisation, iterative otherwise.
+        method: ``"dense"``, ``"local"``, ``"factorised"`` (see the module docstring)
+            or ``"auto"``: dense where the condensed factorisation is cheap
+            (:func:`~admm_dolfinx.linalg.condensed.condensed_factor_applies`), local
+            otherwise.
         operator: The ADMM's operator, to share factorisations: a
             :class:`CondensedOperator` (dense method; nothing is factorised here), or
-            a :class:`PenalisedOperator` (iterative method: left factorised at r_a, its
-            symbolic factorisation reused by the ADMM). A private one otherwise.
+            a :class:`PenalisedOperator` (left factorised at r_a, its symbolic
+            factorisation reused by the ADMM). A private one otherwise.
         petsc_options: Options of the factorisations (MUMPS Cholesky by default).
-        petsc_options_prefix: Prefix; sub-objects get ``schur_``, ``lmin_``, ``lmax_``.
+        petsc_options_prefix: Prefix (default ``"penalty_"``); sub-objects get
+            ``schur_``, ``dense_``, ``layer_``, ``lmin_``, ``lmax_``, ``amg_``.
 
     Returns:
         The estimate.
@@ -171,12 +156,12 @@ def estimate_penalty(
         raise ValueError(f"max_it must be an integer ≥ 1, got {max_it!r}.")
     if method not in PENALTY_METHODS:
         raise ValueError(f"method must be one of {PENALTY_METHODS}, got {method!r}.")
-    prefix = petsc_options_prefix or unique_prefix("penalty_")
+    prefix = petsc_options_prefix or "penalty_"
     t_start = time.perf_counter()
     shared_condensed = isinstance(operator, CondensedOperator)
     if method == "auto":
         dense = shared_condensed or condensed_factor_applies(problem, petsc_options)
-        method = "dense" if dense else "iterative"
+        method = "dense" if dense else "local"
     if method == "dense":
         condensed = operator if shared_condensed else None
         lambda_min, lambda_max, details = _dense_extremes(problem, condensed, prefix, petsc_options)
@@ -190,14 +175,15 @@ def estimate_penalty(
         operator = PenalisedOperator(problem, prefix, petsc_options)
     schur = None
     vectors: list[PETSc.Vec] = []
-    details: dict[str, Any] = {"method": "iterative", "tol": tol, "m": space.m}
+    local = method == "local"
+    details: dict[str, Any] = {"method": method, "tol": tol, "m": space.m}
     try:
         # ---- λ_min = 1 / μ_max(M^{-½} S M^{-½})
         with Timer("admm_dolfinx: r* lambda_min"):
             t0 = time.perf_counter()
             start = space.start_vector()
             vectors.append(start)
-            if tol > _LOCAL_MAX_TOL:
+            if local:
                 mu, its, layers, local_solves = lambda_min_from_layers(
                     space, tol, max_it, start, prefix, petsc_options, vectors
                 )
@@ -219,7 +205,7 @@ def estimate_penalty(
         with Timer("admm_dolfinx: r* lambda_max"):
             t0 = time.perf_counter()
             info = None
-            if tol > _LOCAL_MAX_TOL:
+            if local:
                 try:
                     lambda_max, info = lambda_max_multigrid(space, lambda_min, tol, max_it, prefix)
                 except NeedsFactorisation as reason:

@@ -1,0 +1,143 @@
+"""What a solver does with its settings on a given problem, and why: the "auto" rules.
+
+Every automatic choice of the package is made here, once, before the first solve, and
+the plan says what it chose and why (``solver.plan.describe()``, printed by
+``summary()``):
+
+* step 1: a factorisation of A condensed onto Γ_C (2D, one process, where the dense
+  work is cheap: :func:`~admm_dolfinx.linalg.condensed.condensed_factor_applies`), a
+  factorisation of A + rK, or the user's iterative solver;
+* r*: dense (from the condensed factorisation), local (no factorisation of the body)
+  or factorised, unless the penalty is given;
+* polishing: dense (the compliance of Γ_C, where S_C is at hand), sparse (2D,
+  factorisations of the body), or none;
+* the penalty metric: the paper's r M, or the surface metric r(M + βL_Γ) (3D).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from admm_dolfinx.admm.settings import ADMMSettings
+from admm_dolfinx.linalg.condensed import condensed_factor_applies
+from admm_dolfinx.linalg.petsc import is_factorisation
+from admm_dolfinx.problem.contact_problem import ContactProblem
+
+__all__ = ["SolverPlan", "make_plan"]
+
+
+@dataclass(frozen=True)
+class SolverPlan:
+    """The resolved choices of a solver.
+
+    Attributes:
+        step1: ``"condensed"``, ``"factorised"`` or ``"iterative"``.
+        penalty: How r is found: ``"given"``, ``"dense"``, ``"local"``, ``"factorised"``.
+        polish: ``"dense"``, ``"sparse"`` or ``"none"``.
+        metric: ``"mass"`` or ``"surface"``.
+        private_schur: A condensed factorisation is made for r* and polishing only
+            (freed once S_C is read): step 1 factorises A + rK.
+        factor_options: The options the inner factorisations take (the step-1 options
+            if they describe a MUMPS factorisation, else None: the defaults).
+        reasons: Why, in words.
+    """
+
+    step1: str
+    penalty: str
+    polish: str
+    metric: str
+    private_schur: bool
+    factor_options: dict | None
+    reasons: tuple[str, ...]
+
+    def describe(self) -> str:
+        """One line: the choices and their reasons."""
+        return (
+            f"step 1 {self.step1}, r* {self.penalty}, polish {self.polish}, "
+            f"metric {self.metric} ({'; '.join(self.reasons)})"
+        )
+
+
+def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
+    """Resolve the automatic choices of ``settings`` for ``problem``.
+
+    Raises:
+        ValueError: For a choice the problem cannot take (e.g. ``condensed=True`` under
+            MPI, the surface metric in 2D), naming the fix.
+    """
+    options = dict(settings.petsc_options)
+    auto = settings.penalty == "auto"
+    factor = is_factorisation(options)
+    serial = problem.comm.size == 1
+    gdim = problem.gdim
+    reasons = [f"{gdim}D", "one process" if serial else f"{problem.comm.size} processes"]
+    reasons.append("MUMPS factorisation" if factor else f"iterative step 1 {options}")
+    explicit = settings.condensed is True or settings.polish is True
+    schur_possible = condensed_factor_applies(problem, options, any_dimension=explicit)
+    if settings.condensed is True and not (serial and schur_possible):
+        raise ValueError(
+            "condensed=True needs one process and a MUMPS factorisation (PETSc solves "
+            "with a Schur complement serially only); pass condensed=None."
+        )
+    if settings.polish is True and not factor:
+        raise ValueError(
+            "polish=True needs the Schur complement of A onto the contact dofs, from a "
+            "MUMPS factorisation (ksp_type preonly, pc_type cholesky or lu); got "
+            f"petsc_options={options}. Pass polish=None."
+        )
+    condensed = settings.condensed
+    if condensed is None:
+        condensed = serial and schur_possible and (auto or settings.polish is True)
+    step1 = "condensed" if condensed else ("factorised" if factor else "iterative")
+    schur = condensed or (
+        schur_possible and settings.polish is not False and (auto or bool(settings.polish))
+    )
+    if schur and settings.polish is not False:
+        polish = "dense"
+        reasons.append("the dense Schur complement onto Γ_C is cheap here")
+    elif settings.polish is not False and (auto or settings.polish) and gdim == 2 and factor:
+        polish = "sparse"
+        reasons.append("Γ_C too large for dense polishing: sparse factorisations")
+    else:
+        polish = "none"
+    metric = "mass"
+    if settings.penalty_metric == "surface":
+        if gdim != 3:
+            raise ValueError(
+                "penalty_metric='surface' is for 3D bodies (a contact surface); this one "
+                "is 2D (or pass penalty_metric='mass')."
+            )
+        metric = "surface"
+    elif (
+        settings.penalty_metric == "auto"
+        and gdim == 3
+        and auto
+        and settings.mode == "accelerated"
+        and polish == "none"
+    ):
+        metric = "surface"
+        reasons.append("3D: the surface metric keeps the iteration count flat")
+    if not auto:
+        penalty = "given"
+    elif settings.penalty_method != "auto":
+        penalty = settings.penalty_method
+    else:
+        penalty = "dense" if schur or condensed_factor_applies(problem, options) else "local"
+    if (
+        penalty == "dense"
+        and not schur
+        and not condensed_factor_applies(problem, options, any_dimension=True)
+    ):
+        raise ValueError(
+            "penalty_method='dense' needs a MUMPS factorisation of the body condensed "
+            "onto Γ_C; use penalty_method='local' or 'factorised'."
+        )
+    return SolverPlan(
+        step1=step1,
+        penalty=penalty,
+        polish=polish,
+        metric=metric,
+        private_schur=bool(schur and not condensed),
+        factor_options=options if factor else None,
+        reasons=tuple(reasons),
+    )

@@ -1,0 +1,226 @@
+"""The outcome of a solve: typed, with its status, timings and what the solver did."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx import fem
+
+from admm_dolfinx.admm.settings import ADMMSettings
+from admm_dolfinx.penalty.estimate import PenaltyEstimate
+from admm_dolfinx.penalty.surface import SurfacePenalty
+from admm_dolfinx.problem.kkt import KKTResiduals
+
+__all__ = ["STATUSES", "ADMMConvergenceError", "ADMMResult", "PolishInfo", "Timings"]
+
+#: ``ADMMResult.status`` values and what they mean.
+STATUSES = {
+    "converged": "converged",
+    "callback": "stopped by the callback (not converged)",
+    "max_iter": "NOT CONVERGED (iteration limit)",
+    "inaccurate": "NOT CONVERGED (stagnated: KKT residuals above tolerance)",
+    "inexact_step1": "NOT CONVERGED (inexact step-1 solves)",
+}
+
+
+@dataclass(frozen=True)
+class Timings:
+    """Wall-clock seconds of a solve, phase by phase (one home: ``dolfinx.common.Timer``).
+
+    Attributes:
+        assembly: Building the problem's operators (once per problem).
+        penalty: r* (and the surface metric's β and μ_max; a private condensed
+            factorisation for it included).
+        operator: Forming A + rK (and the dense compliance when polishing densely).
+        factorization: Factorising step 1's operator.
+        iterations: The ADMM loop (polishing included).
+        kkt: The final KKT check.
+        total: All of the above.
+    """
+
+    assembly: float = 0.0
+    penalty: float = 0.0
+    operator: float = 0.0
+    factorization: float = 0.0
+    iterations: float = 0.0
+    kkt: float = 0.0
+    total: float = 0.0
+
+    def __getitem__(self, name: str) -> float:
+        """``timings["iterations"]``: the same as ``timings.iterations``."""
+        if name not in self.names():
+            raise KeyError(name)
+        return float(getattr(self, name))
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The phases."""
+        return tuple(f.name for f in fields(cls))
+
+    def items(self):
+        """(phase, seconds) pairs."""
+        return asdict(self).items()
+
+    def as_dict(self) -> dict[str, float]:
+        """Plain numbers for reports and JSON."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class PolishInfo:
+    """What active-set polishing did in a solve.
+
+    Attributes:
+        kind: ``"dense"`` (the compliance of Γ_C) or ``"sparse"`` (factorisations).
+        polished_at: The iteration that evaluated the polished state, or None.
+        attempts: Guesses tried.
+        rounds: Active-set rounds (dense solves or sparse factorisations).
+        skipped: Attempts skipped because polishing had taken longer than the rest of
+            the iterations.
+        time: Seconds within the iterations.
+    """
+
+    kind: str
+    polished_at: int | None
+    attempts: int
+    rounds: int
+    skipped: int
+    time: float
+
+    def __getitem__(self, name: str) -> Any:
+        """Dictionary-style access to the fields."""
+        return getattr(self, name)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain values."""
+        return asdict(self)
+
+
+@dataclass
+class ADMMResult:
+    """Outcome of :meth:`ADMMSolver.solve`.
+
+    Attributes:
+        u: Displacement, a Function on the problem's space.
+        pressure: Contact pressure λ ≥ 0 as a P1 scalar Function, zero off Γ_C.
+        converged: Whether the solve converged: the stopping test was met *and* the
+            relative KKT residuals recomputed from (u, λ) after the loop (:attr:`kkt`)
+            are at most ``settings.kkt_tol``. True for every returned result except a
+            callback stop.
+        status: A key of :data:`STATUSES`: ``"converged"``; ``"callback"`` (returned
+            with ``converged=False``); on the result attached to an
+            :class:`ADMMConvergenceError`: ``"max_iter"``, ``"inaccurate"`` (the test
+            was met but the recomputed KKT residuals exceed ``kkt_tol``: the iteration
+            stagnated) or ``"inexact_step1"`` (the step-1 solves are not exact enough
+            for the loop's residual identity).
+        iterations: Number of ADMM iterations (= step-1 solves, rejected Anderson
+            steps included).
+        penalty: The penalty parameter r that was used.
+        history: Per-iteration lists: ``du``, ``dp`` (relative changes of u and p),
+            ``fpr`` (scaled fixed-point residual), ``feasibility``, ``complementarity``,
+            ``equilibrium`` (relative KKT residuals), ``active`` (global number of
+            nodes with λ > 0) and ``accelerated`` (what the evaluated state was: 0 a
+            plain step, 1 an accepted Anderson extrapolation, 2 an accepted polished
+            state, −1 a rejected proposal).
+        timings: Seconds per phase.
+        kkt: Relative KKT residuals of (u, λ), computed independently.
+        multiplier: λ at the owned contact nodes (local array).
+        num_active: Global number of contact nodes with λ > 0.
+        num_contact_nodes: Global number m of contact nodes.
+        settings: The solver's settings.
+        plan: What the solver chose and why (:class:`~admm_dolfinx.admm.plan.SolverPlan`).
+        max_pressure: max λ over Γ_C.
+        penalty_estimate: The r* estimate, if the penalty was automatic.
+        surface_penalty: β and r of the surface metric, if it was used.
+        polish: What polishing did (None when off).
+        projection: The surface metric's QP statistics (active-set ``rounds``,
+            ``factorisations``), if it was used.
+        warning: Non-empty when the solve was slow, with the observed contraction
+            rate and the likely cause.
+    """
+
+    u: fem.Function
+    pressure: fem.Function
+    converged: bool
+    status: str
+    iterations: int
+    penalty: float
+    history: dict[str, list[float]]
+    timings: Timings
+    kkt: KKTResiduals
+    multiplier: npt.NDArray[np.float64]
+    num_active: int
+    num_contact_nodes: int
+    settings: ADMMSettings
+    plan: Any = None
+    max_pressure: float = 0.0
+    penalty_estimate: PenaltyEstimate | None = None
+    surface_penalty: SurfacePenalty | None = None
+    polish: PolishInfo | None = None
+    projection: dict[str, int] | None = None
+    warning: str = ""
+
+    @property
+    def polished(self) -> bool:
+        """Whether the solve ended from a polished (exact active-set) state."""
+        return self.polish is not None and self.polish.polished_at is not None
+
+    def summary(self) -> str:
+        """A short human-readable report (what the demos print)."""
+        k, s, t = self.kkt, self.settings, self.timings
+        est, surface = self.penalty_estimate, self.surface_penalty
+        how = ""
+        if est is not None:
+            solves = f", {est.solves} solves" if est.details.get("method") != "dense" else ""
+            how = (
+                f" (r* by the {est.details.get('method')} method: λ_min {est.lambda_min:.4g}, "
+                f"λ_max {est.lambda_max:.4g}{solves})"
+            )
+        if surface is not None:
+            how = (
+                f" in the surface metric r(M + βL_Γ), β = {surface.beta:.4g} "
+                f"(from r* {surface.estimate.r:.6g}: λ_min {surface.estimate.lambda_min:.4g}, "
+                f"λ_max {surface.estimate.lambda_max:.4g}; μ_max {surface.mu_max:.4g})"
+            )
+        lines = [
+            f"ADMM {STATUSES.get(self.status, self.status)} in {self.iterations} iterations, "
+            f"r = {self.penalty:.6g}{how}",
+            f"  {s.mode} mode: alpha {s.alpha}, Anderson memory {s.anderson}, stopping "
+            f"'{s.stopping}' at rtol {s.rtol:g} (KKT checked at {s.kkt_tol:g})",
+        ]
+        if self.plan is not None:
+            lines.append(f"  plan: {self.plan.describe()}")
+        lines += [
+            f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
+            f"  max pressure = {self.max_pressure:.6g}",
+            "  KKT residuals (relative): "
+            f"feasibility {k.primal_feasibility:.2e}, complementarity "
+            f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}",
+            "  time [s]: " + ", ".join(f"{name} {value:.3f}" for name, value in t.items()),
+        ]
+        if self.polish is not None:
+            p = self.polish
+            at = p.polished_at
+            lines.append(
+                f"  polish ({p.kind}): "
+                f"{'exact state from iteration ' + str(at) if at else 'not used'}"
+                f" ({p.attempts} attempts, {p.rounds} active-set rounds, {p.time:.3f} s)"
+            )
+        if self.warning:
+            lines.append(f"  WARNING: {self.warning}")
+        return "\n".join(lines)
+
+
+class ADMMConvergenceError(RuntimeError):
+    """Raised when a solve does not converge (its ``result.status`` says why).
+
+    Attributes:
+        result: The (unconverged) result at the last iterate, ``converged=False``.
+    """
+
+    def __init__(self, message: str, result: ADMMResult):
+        super().__init__(message)
+        self.result = result

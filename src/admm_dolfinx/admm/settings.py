@@ -1,0 +1,326 @@
+"""The solver's settings: one frozen, validated object, with the paper's algorithm a preset.
+
+OSQP's lesson: every setting has one documented default, an unknown name is an error
+(with the closest known names), conflicting values raise, and nothing is silently
+overridden. ``mode`` selects a preset: ``"accelerated"`` (the default) or ``"paper"``
+(Algorithm 2 of Koko 2019: no over-relaxation, no acceleration, the relative-change
+test at the paper's tolerance). A preset fixes the settings that define its
+algorithm; passing a different value for one of them alongside it is an error.
+
+Options prefixes are deterministic: ``petsc_options_prefix`` (default ``"admm_"``),
+and under it one derived prefix per inner solver (:attr:`ADMMSettings.prefixes`), so
+that each can be tuned through PETSc's options database.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import numbers
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from types import MappingProxyType
+from typing import Any
+
+__all__ = [
+    "CHANGE_TEST_KKT_TOL",
+    "DEFAULT_PREFIX",
+    "MODES",
+    "PAPER_RTOL",
+    "ADMMSettings",
+]
+
+#: Tolerance of the paper's relative-change test. With it, Example 1 needs the
+#: iteration counts of the paper's Table 1, so it is taken to be the paper's tolerance
+#: (``admm-dolfinx reproduce table1`` prints both).
+PAPER_RTOL = 1e-5
+#: Default ``kkt_tol`` with the relative-change test: that test bounds the changes of
+#: u and p, not the residuals, which it leaves larger where ADMM contracts slowly (a
+#: floating body at r*, a penalty at the edge of the paper's sampling range); a
+#: stagnated iteration (an r orders of magnitude off) is far above it.
+CHANGE_TEST_KKT_TOL = 1e-2
+#: The default options prefix of a solver (DOLFINx's solvers make it mandatory; here
+#: it is fixed, so that the same script always reads the same options).
+DEFAULT_PREFIX = "admm_"
+
+_STOPPING = ("kkt", "change")
+_METRICS = ("auto", "mass", "surface")
+_PENALTY_METHODS = ("auto", "dense", "local", "factorised")
+#: The presets: the values each mode starts from. The defaults of the accelerated mode
+#: were chosen by ``benchmarks/acceleration.py``.
+PRESETS: dict[str, dict[str, Any]] = {
+    "accelerated": {
+        "alpha": 1.6,
+        "anderson": 5,
+        "stopping": "kkt",
+        "rtol": 1e-6,
+        "polish": None,
+        "penalty_metric": "auto",
+    },
+    "paper": {
+        "alpha": 1.0,
+        "anderson": 0,
+        "stopping": "change",
+        "rtol": PAPER_RTOL,
+        "polish": False,
+        "penalty_metric": "mass",
+    },
+}
+MODES = tuple(PRESETS)
+#: The settings a preset fixes: an explicit different value conflicts with the mode
+#: (``rtol`` is only the preset's default).
+FIXED_BY = {
+    "accelerated": (),
+    "paper": ("alpha", "anderson", "stopping", "polish", "penalty_metric"),
+}
+
+
+def _real(name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {value!r}.")
+    return float(value)
+
+
+def _integer(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an int, got {value!r}.")
+    return int(value)
+
+
+def _choice(name: str, value: Any, choices: tuple) -> Any:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}.")
+    return value
+
+
+def _switch(name: str, value: Any) -> bool | None:
+    if value is not None and not isinstance(value, bool):
+        raise TypeError(f"{name} must be None (automatic), True or False, got {value!r}.")
+    return value
+
+
+def check_penalty(r: Any) -> float:
+    """A penalty r given by hand: a positive finite real number, else a clear error."""
+    try:
+        value = float(r)
+    except (TypeError, ValueError):
+        raise TypeError(f"penalty must be a positive number or 'auto', got {r!r}.") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(
+            f"penalty r must be a positive finite number, got {r!r}. Use penalty='auto' "
+            "for the automatic choice r* = 1/sqrt(λ_min λ_max), or a value of the order "
+            "of Young's modulus."
+        )
+    return value
+
+
+@dataclass(frozen=True)
+class ADMMSettings:
+    """Validated settings of :class:`~admm_dolfinx.ADMMSolver` (build with :meth:`create`).
+
+    Attributes:
+        penalty: Penalty parameter r > 0, or ``"auto"``: r* = 1/sqrt(λ_min λ_max) (in
+            3D with the surface metric, its own r and β).
+        mode: ``"accelerated"`` or ``"paper"``: the preset (see the module docstring).
+        rtol: Tolerance of the stopping test.
+        kkt_tol: Tolerance of the final check of the KKT residuals recomputed from
+            (u, λ); ``converged=True`` only if they are all ≤ it. Default: ``rtol``
+            with the ``"kkt"`` test, :data:`CHANGE_TEST_KKT_TOL` with ``"change"``.
+        max_iter: Maximum number of iterations (≥ 1).
+        alpha: Over-relaxation α ∈ (0, 2); 1 is plain ADMM.
+        anderson: Anderson memory k ≥ 0; 0 switches acceleration off.
+        stopping: ``"kkt"`` (fixed-point and KKT residuals) or ``"change"`` (the
+            paper's relative changes of u and p).
+        penalty_method: How r* is computed: ``"dense"`` (the whole pencil from the
+            condensed stiffness: exact; 2D-sized Γ_C), ``"local"`` (λ_min on layers
+            along Γ_C, λ_max by multigrid LOBPCG: no factorisation of the body),
+            ``"factorised"`` (both ends from factorisations of the body: exact to
+            ``penalty_tol``, the same on any partition), or ``"auto"``: dense where the
+            condensed factorisation is cheap (:mod:`admm_dolfinx.linalg.condensed`),
+            local otherwise.
+        penalty_tol: Eigenvalue tolerance of the iterative r* methods.
+        penalty_metric: The norm of the penalty term: ``"mass"`` (the paper's r M),
+            ``"surface"`` (r(M + βL_Γ), 3D), or ``"auto"`` (surface in 3D with an
+            automatic penalty and no polishing, mass otherwise).
+        condensed: Step 1 through one factorisation of A condensed onto Γ_C (None:
+            where it also gives r*, i.e. 2D, one process, ``penalty="auto"``).
+        polish: Active-set polishing (None: in 2D with ``penalty="auto"`` and a
+            factorised step 1; True also in 3D; False: never).
+        polish_rounds: Primal-dual active-set corrections per dense polishing guess.
+        petsc_options: Options of the step-1 solver (MUMPS Cholesky by default); also
+            of the inner factorisations of r* when they describe a factorisation.
+        petsc_options_prefix: The solver's options prefix (see :attr:`prefixes`).
+    """
+
+    penalty: float | str = "auto"
+    mode: str = "accelerated"
+    rtol: float = PRESETS["accelerated"]["rtol"]
+    kkt_tol: float = PRESETS["accelerated"]["rtol"]
+    max_iter: int = 1000
+    alpha: float = PRESETS["accelerated"]["alpha"]
+    anderson: int = PRESETS["accelerated"]["anderson"]
+    stopping: str = PRESETS["accelerated"]["stopping"]
+    penalty_method: str = "auto"
+    penalty_tol: float = 1e-2
+    penalty_metric: str = "auto"
+    condensed: bool | None = None
+    polish: bool | None = None
+    polish_rounds: int = 10
+    petsc_options: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    petsc_options_prefix: str = DEFAULT_PREFIX
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The setting names."""
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def create(cls, **given: Any) -> ADMMSettings:
+        """Validated settings from the given values, the mode's preset and the defaults.
+
+        Raises:
+            TypeError: For an unknown name (the closest known ones are named) or a value
+                of the wrong type.
+            ValueError: For a value out of range, or one that conflicts with the mode.
+        """
+        unknown = [name for name in given if name not in cls.names()]
+        if unknown:
+            hints = {n: difflib.get_close_matches(n, cls.names(), n=2) for n in unknown}
+            text = "; ".join(
+                f"{n!r}" + (f" (did you mean {' or '.join(map(repr, h))}?)" if h else "")
+                for n, h in hints.items()
+            )
+            raise TypeError(f"Unknown ADMM setting(s): {text}. Known: {', '.join(cls.names())}.")
+        # None is "not given" (the default or the preset's value)
+        given = {k: v for k, v in given.items() if v is not None}
+        mode = _choice("mode", given.get("mode", "accelerated"), MODES)
+        preset = PRESETS[mode]
+        for name in FIXED_BY[mode]:
+            automatic = name == "penalty_metric" and given.get(name) == "auto"
+            if name in given and given[name] != preset[name] and not automatic:
+                raise ValueError(
+                    f"mode={mode!r} fixes {name} = {preset[name]!r} (it is the paper's "
+                    f"algorithm); you also passed {name}={given[name]!r}. Drop one of them: "
+                    "for other values use mode='accelerated'."
+                )
+        values = {**preset, **given, "mode": mode}
+        if mode == "paper" and values["penalty_metric"] == "auto":
+            values["penalty_metric"] = "mass"
+        rtol = _real("rtol", values["rtol"])
+        if not (math.isfinite(rtol) and rtol > 0.0):
+            raise ValueError(f"rtol must be a positive finite number, got {rtol!r}.")
+        stopping = _choice("stopping", values["stopping"], _STOPPING)
+        kkt_tol = values.get("kkt_tol")
+        kkt_tol = (
+            (rtol if stopping == "kkt" else CHANGE_TEST_KKT_TOL) if kkt_tol is None else kkt_tol
+        )
+        kkt_tol = _real("kkt_tol", kkt_tol)
+        if not (math.isfinite(kkt_tol) and kkt_tol > 0.0):
+            raise ValueError(f"kkt_tol must be a positive finite number, got {kkt_tol!r}.")
+        if stopping == "kkt" and kkt_tol < rtol:
+            raise ValueError(
+                f"kkt_tol = {kkt_tol:g} is below rtol = {rtol:g}: with the 'kkt' stopping "
+                "test the loop stops at rtol, so the final check could never pass. Lower "
+                "rtol instead."
+            )
+        max_iter = _integer("max_iter", values.get("max_iter", 1000))
+        if max_iter < 1:
+            raise ValueError(f"max_iter must be at least 1, got {max_iter}.")
+        alpha = _real("alpha", values["alpha"])
+        if not 0.0 < alpha < 2.0:
+            raise ValueError(f"alpha (over-relaxation) must lie in (0, 2), got {alpha}.")
+        anderson = _integer("anderson", values["anderson"])
+        if anderson < 0:
+            raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
+        penalty_tol = _real("penalty_tol", values.get("penalty_tol", 1e-2))
+        if not 0.0 < penalty_tol < 1.0:
+            raise ValueError(f"penalty_tol must lie in (0, 1), got {penalty_tol!r}.")
+        penalty = values.get("penalty", "auto")
+        if not (isinstance(penalty, str) and penalty == "auto"):
+            penalty = check_penalty(penalty)
+        polish_rounds = _integer("polish_rounds", values.get("polish_rounds", 10))
+        if polish_rounds < 1:
+            raise ValueError(f"polish_rounds must be at least 1, got {polish_rounds}.")
+        prefix = values.get("petsc_options_prefix", DEFAULT_PREFIX)
+        if not isinstance(prefix, str) or not prefix or prefix.startswith("-"):
+            raise ValueError(
+                f"petsc_options_prefix must be a non-empty string without a leading '-', "
+                f"got {prefix!r}."
+            )
+        options = values.get("petsc_options") or {}
+        if not isinstance(options, Mapping):
+            raise TypeError(f"petsc_options must be a mapping of PETSc options, got {options!r}.")
+        settings = cls(
+            penalty=penalty,
+            mode=mode,
+            rtol=rtol,
+            kkt_tol=kkt_tol,
+            max_iter=max_iter,
+            alpha=alpha,
+            anderson=anderson,
+            stopping=stopping,
+            penalty_method=_choice(
+                "penalty_method", values.get("penalty_method", "auto"), _PENALTY_METHODS
+            ),
+            penalty_tol=penalty_tol,
+            penalty_metric=_choice("penalty_metric", values["penalty_metric"], _METRICS),
+            condensed=_switch("condensed", values.get("condensed")),
+            polish=_switch("polish", values["polish"]),
+            polish_rounds=polish_rounds,
+            petsc_options=MappingProxyType(dict(options)),
+            petsc_options_prefix=prefix,
+        )
+        settings._check_combinations()
+        return settings
+
+    def _check_combinations(self) -> None:
+        auto = self.penalty == "auto"
+        if self.penalty_metric == "surface":
+            for failed, reason in (
+                (not auto, "chooses r and β itself: pass penalty='auto'"),
+                (self.polish is True, "and polish=True exclude each other"),
+            ):
+                if failed:
+                    raise ValueError(
+                        f"penalty_metric='surface' {reason} (or pass penalty_metric='mass')."
+                    )
+        if not auto and self.penalty_method != "auto":
+            raise ValueError(
+                f"penalty_method={self.penalty_method!r} chooses how r* is computed, but the "
+                f"penalty is given (r = {self.penalty}): pass penalty='auto' or drop "
+                "penalty_method."
+            )
+
+    def replace(self, **changes: Any) -> ADMMSettings:
+        """A validated copy with some settings changed (``kkt_tol`` follows a new rtol)."""
+        current = {f.name: getattr(self, f.name) for f in fields(self)}
+        if "rtol" in changes or "stopping" in changes:
+            current.pop("kkt_tol")
+        if "mode" in changes:  # a new preset: keep only what is not the old preset's
+            for name in PRESETS[self.mode]:
+                current.pop(name, None)
+        return ADMMSettings.create(**{**current, **changes})
+
+    @property
+    def prefixes(self) -> dict[str, str]:
+        """The options prefix of each inner solver, derived from the solver's prefix.
+
+        ``step1`` (the factorisation or KSP of step 1), ``penalty`` (r*: ``dense_``,
+        ``layer_``, ``lmin_``, ``lmax_``, ``amg_`` below it), ``surface`` (μ_max of the
+        surface metric), ``polish`` (sparse polishing's factorisations), ``schur`` (a
+        private condensed factorisation for r* and polishing).
+        """
+        p = self.petsc_options_prefix
+        return {
+            "step1": f"{p}step1_",
+            "penalty": f"{p}penalty_",
+            "surface": f"{p}surface_",
+            "polish": f"{p}polish_",
+            "schur": f"{p}schur_",
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain values (for JSON and reports)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["petsc_options"] = dict(self.petsc_options)
+        return out

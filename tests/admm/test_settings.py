@@ -1,0 +1,129 @@
+"""The settings object: validated, frozen, presets that never override silently; the plan.
+
+OSQP's rules: an unknown name is an error (with the closest known names), conflicting
+values raise, nothing is silently overridden; a preset (``mode="paper"``) fixes the
+settings of its algorithm, and an explicit different value is an error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from admm_dolfinx import ADMMSettings, ADMMSolver
+from admm_dolfinx.admm.settings import PAPER_RTOL
+from admm_dolfinx.scenes import example1, example3
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return example1(MPI.COMM_WORLD, h=1 / 8, mesher="builtin").problem()
+
+
+def test_defaults_and_presets():
+    fast = ADMMSettings.create()
+    assert (fast.alpha, fast.anderson, fast.stopping, fast.rtol) == (1.6, 5, "kkt", 1e-6)
+    assert fast.kkt_tol == fast.rtol
+    paper = ADMMSettings.create(mode="paper")
+    assert (paper.alpha, paper.anderson, paper.stopping, paper.polish) == (1.0, 0, "change", False)
+    assert paper.rtol == PAPER_RTOL and paper.kkt_tol == 1e-2
+    assert ADMMSettings.create(mode="paper", rtol=1e-7).rtol == 1e-7  # rtol: only a default
+    # a preset value given explicitly is no conflict
+    assert ADMMSettings.create(mode="paper", alpha=1.0).alpha == 1.0
+
+
+@pytest.mark.parametrize(
+    "name,value",
+    [
+        ("alpha", 1.6),
+        ("anderson", 5),
+        ("stopping", "kkt"),
+        ("polish", True),
+        ("penalty_metric", "surface"),
+    ],
+)
+def test_paper_mode_refuses_a_conflicting_value(name, value, problem):
+    with pytest.raises(ValueError, match=rf"mode='paper' fixes {name}"):
+        ADMMSettings.create(mode="paper", **{name: value})
+    with pytest.raises(ValueError, match=rf"mode='paper' fixes {name}"):
+        ADMMSolver(problem, mode="paper", **{name: value})
+
+
+def test_unknown_names_are_refused_with_a_suggestion(problem):
+    with pytest.raises(TypeError, match=r"'alpah' \(did you mean 'alpha'\?\)"):
+        ADMMSettings.create(alpah=1.5)
+    with pytest.raises(TypeError, match="Unknown ADMM setting"):
+        ADMMSolver(problem, max_iters=10)
+
+
+@pytest.mark.parametrize(
+    "options,message",
+    [
+        ({"rtol": 0.0}, "rtol must be a positive"),
+        ({"alpha": 2.0}, "alpha"),
+        ({"anderson": -1}, "anderson"),
+        ({"max_iter": 0}, "max_iter"),
+        ({"penalty_tol": 1.5}, "penalty_tol"),
+        ({"stopping": "often"}, "stopping must be one of"),
+        ({"penalty": -1.0}, "positive finite"),
+        ({"penalty": 3.0, "penalty_metric": "surface"}, "chooses r and β itself"),
+        ({"penalty": 3.0, "penalty_method": "dense"}, "penalty is given"),
+        ({"rtol": 1e-6, "kkt_tol": 1e-8}, "below rtol"),
+        ({"petsc_options_prefix": "-x"}, "prefix"),
+    ],
+)
+def test_bad_values_raise(options, message):
+    with pytest.raises((TypeError, ValueError), match=message):
+        ADMMSettings.create(**options)
+
+
+def test_settings_are_frozen_and_replace_validates():
+    settings = ADMMSettings.create(rtol=1e-7)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        settings.rtol = 1e-8  # type: ignore[misc]
+    tighter = settings.replace(rtol=1e-9)
+    assert tighter.rtol == tighter.kkt_tol == 1e-9 and settings.rtol == 1e-7
+    with pytest.raises(ValueError):
+        settings.replace(alpha=3.0)
+
+
+def test_prefixes_are_deterministic_and_derived():
+    prefixes = ADMMSettings.create(petsc_options_prefix="mine_").prefixes
+    assert prefixes["step1"] == "mine_step1_" and prefixes["penalty"] == "mine_penalty_"
+    assert len(set(prefixes.values())) == len(prefixes)
+    assert ADMMSettings.create().prefixes == ADMMSettings.create().prefixes
+
+
+def test_the_plan_is_printable_before_a_solve(problem):
+    with ADMMSolver(problem) as solver:
+        plan = solver.plan
+        text = solver.summary()
+    assert plan.penalty == "dense" and plan.polish == "dense" and plan.metric == "mass"
+    assert "2D" in plan.describe() and "polish dense" in text
+    three = example3(MPI.COMM_WORLD, level=0).problem()
+    with ADMMSolver(three) as solver:
+        assert solver.plan.metric == "surface" and solver.plan.penalty == "local"
+    with ADMMSolver(three, penalty_method="factorised", penalty_tol=1e-8) as solver:
+        assert solver.penalty_estimate.details["method"] == "factorised"
+
+
+def test_update_settings_between_solves(problem):
+    with ADMMSolver(problem, polish=False) as solver:
+        loose = solver.solve()
+        solver.update_settings(rtol=1e-10)
+        tight = solver.solve()
+        assert tight.iterations > loose.iterations and tight.kkt.max() <= 1e-10
+        with pytest.raises(ValueError, match="build a new ADMMSolver"):
+            solver.update_settings(penalty=3.0)
+    assert np.isclose(loose.settings.rtol, 1e-6) and tight.settings.rtol == 1e-10
+
+
+def test_a_settings_object_is_accepted(problem):
+    settings = ADMMSettings.create(mode="paper")
+    with ADMMSolver(problem, settings) as solver:
+        assert solver.settings == settings
+    with ADMMSolver(problem, settings, rtol=1e-6) as solver:  # options on top
+        assert solver.settings.rtol == 1e-6 and solver.settings.mode == "paper"
