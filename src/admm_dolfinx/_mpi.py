@@ -29,6 +29,7 @@ __all__ = [
     "RankLayout",
     "agree",
     "collective_call",
+    "from_rank0",
     "gather_concat",
     "gather_csr",
     "gather_objects",
@@ -114,6 +115,15 @@ def agree(comm: MPI.Comm, flag: bool) -> tuple[bool, bool]:
     """(any rank True, all ranks agree) for a flag that user code computed per rank."""
     flags = comm.allgather(bool(flag))
     return any(flags), all(f == flags[0] for f in flags)
+
+
+def from_rank0(comm: MPI.Comm, value: T) -> T:
+    """A (small) value that rank 0 computed, on every rank; collective.
+
+    Rank 0's work itself must not raise there alone: run it with :func:`run_on_rank0`,
+    or catch its failures into the value.
+    """
+    return comm.bcast(value, root=0)
 
 
 def run_on_rank0(

@@ -49,7 +49,7 @@ import numpy as np
 import numpy.typing as npt
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx._mpi import RankLayout
+from admm_dolfinx._mpi import RankLayout, from_rank0
 from admm_dolfinx.penalty.dense import compliance_matrix
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
@@ -141,7 +141,7 @@ class ActiveSetPolish:
                     type(error).__name__,
                     error,
                 )
-        self.setup_time = self.comm.bcast(time.perf_counter() - t0, root=0)
+        self.setup_time = from_rank0(self.comm, time.perf_counter() - t0)
 
     def reset(self) -> None:
         """Start a solve: read the current gap; forget the guesses tried; collective."""
@@ -184,7 +184,7 @@ class ActiveSetPolish:
                 except Exception as error:  # an attempt that fails is one not taken
                     logger.warning("Polishing attempt failed: %s: %s", type(error).__name__, error)
                     outcome, rounds = None, 1
-        rounds, found, skip = self.comm.bcast((rounds, outcome is not None, skip), root=0)
+        rounds, found, skip = from_rank0(self.comm, (rounds, outcome is not None, skip))
         self.attempts += int(rounds > 0)
         self.rounds += rounds
         self.skipped += int(skip)

@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 from petsc4py import PETSc
 
-from admm_dolfinx._mpi import run_on_rank0
+from admm_dolfinx._mpi import from_rank0, run_on_rank0
 from admm_dolfinx.linalg.petsc import PetscOwner
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
 
@@ -112,7 +112,7 @@ class SurfaceProjection(PetscOwner):
         counts = None
         if self._qp is not None:
             counts = {"rounds": self._qp.rounds, "factorisations": self._qp.factorisations}
-        return self.comm.bcast(counts, root=0)
+        return from_rank0(self.comm, counts)
 
     def destroy(self) -> None:
         """Free the rank-0 matrices and factorisations."""

@@ -42,7 +42,7 @@ from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx._mpi import RankLayout, gather_concat, run_on_rank0
+from admm_dolfinx._mpi import RankLayout, from_rank0, gather_concat, run_on_rank0
 from admm_dolfinx.linalg.mumps_schur import (
     SchurBlock,
     factorize_schur,
@@ -265,7 +265,7 @@ class CondensedOperator(FactorisedOperator):
         """K must vanish outside C × C, or the condensed solve would be wrong."""
         total = self.problem.K.norm(PETSc.NormType.FROBENIUS)
         inside = float(np.linalg.norm(self.k_cc)) if self.k_cc is not None else 0.0
-        inside = self.problem.comm.bcast(inside, root=0)
+        inside = from_rank0(self.problem.comm, inside)
         if abs(total - inside) > 1e-12 * max(total, 1e-300):  # pragma: no cover - invariant
             raise RuntimeError("NᵀMN has entries outside the contact normal dofs.")
 

@@ -7,7 +7,7 @@
 * the facet tags with the candidate contact boundary Γ_C, and
 * an analytic rigid :class:`~admm_dolfinx.problem.obstacles.Obstacle`
 
-into the data of the quadratic programme (design.md §1)
+into the data of the quadratic programme (docs/design.md §1)
 
     minimise ½ uᵀA u − fᵀu   subject to   N u ≤ g,
 

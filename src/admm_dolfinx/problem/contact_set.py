@@ -4,7 +4,7 @@ Everything here is parallel-safe: facet integrals are assembled by DOLFINx and
 summed across process boundaries, so a contact facet that spans two ranks yields the
 same nodal normal and mass on both.
 
-Notation (design.md §1): contact node j has the lumped mass M_jj = ∫_Γc φ_j ds, the
+Notation (docs/design.md §1): contact node j has the lumped mass M_jj = ∫_Γc φ_j ds, the
 contact direction d_j (the row of N: (N u)_j = u_j · d_j) and the gap g_j. With the
 default ``contact_normal="obstacle"``, d_j = −ν_j, ν_j the obstacle's unit normal at
 the point closest to x_j, and g_j the signed distance; with ``"body"`` (the paper's),
@@ -26,7 +26,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import warn
-from admm_dolfinx._mpi import collective_call, gather_concat
+from admm_dolfinx._mpi import collective_call, from_rank0, gather_concat
 from admm_dolfinx.problem.obstacles import Obstacle, implements
 
 __all__ = [
@@ -439,7 +439,7 @@ def _check_gap_values(gap, coordinates, comm, length_scale, what, contact_normal
         examples = gather_concat(comm, coordinates[mask][:5])
         n_bad = comm.allreduce(int(np.count_nonzero(mask)), op=MPI.SUM)
         if n_bad > 0:
-            points = comm.bcast(None if examples is None else examples[0][:5].tolist(), root=0)
+            points = from_rank0(comm, None if examples is None else examples[0][:5].tolist())
             raise ValueError(
                 f"The gap to {what} {problem} at {n_bad} contact node(s), e.g. at {points}. "
                 "The gap must be finite (negative: the node starts inside the obstacle), "

@@ -1,7 +1,7 @@
 """Named contact scenes: the paper's examples, declared with only what they need.
 
 A scene is the body's mesh with tagged boundary parts, a material, loads, Dirichlet
-conditions and an analytic rigid obstacle (design.md §5).  It knows nothing about
+conditions and an analytic rigid obstacle (docs/design.md §6).  It knows nothing about
 the solver: :meth:`Scene.problem` hands its data to
 :class:`~admm_dolfinx.ContactProblem`, and from there the data flows one way.
 """
