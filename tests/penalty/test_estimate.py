@@ -212,7 +212,7 @@ def test_bad_tolerance(tol):
 def test_trial_pressures_drop_dependent_ones(scene, expected):
     """λ_max's start solves only for affine pressures independent on Γ_C (MPI-safe)."""
     from admm_dolfinx.penalty.contact_operators import ContactSpace
-    from admm_dolfinx.penalty.extremes import affine_pressure_loads
+    from admm_dolfinx.penalty.iterative import affine_pressure_loads
 
     problem = scene().problem()
     space = ContactSpace(problem)
@@ -241,7 +241,7 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
     planned steps taken), each response is one preconditioner application instead: the
     Ritz vectors are finite, B-orthonormal and lie in span{P f_i}."""
     from admm_dolfinx.penalty.contact_operators import ContactSpace
-    from admm_dolfinx.penalty.extremes import affine_pressure_loads
+    from admm_dolfinx.penalty.iterative import affine_pressure_loads
     from admm_dolfinx.penalty.lobpcg import BLOCK_SIZE, _ritz_start, gram_matrix
 
     problem = example1(h=1 / 16).problem()

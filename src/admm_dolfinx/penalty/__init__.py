@@ -2,7 +2,7 @@
 
 Stage 2 of the pipeline. One entry point, :func:`estimate_penalty`; one file per
 thing computed: the whole pencil densely (:mod:`.dense`), its two ends iteratively
-(:mod:`.extremes` with the operators of :mod:`.contact_operators` and the LOBPCG of
+(:mod:`.iterative`, with the operators of :mod:`.contact_operators` and the LOBPCG of
 :mod:`.lobpcg`), and β and r of the surface metric (:mod:`.surface`).
 """
 

@@ -23,9 +23,15 @@ compliant body.
 
 from __future__ import annotations
 
-import numpy as np
+import time
 
-__all__ = ["RIGID_TOL", "compliance_matrix", "extremes_from_schur"]
+import numpy as np
+from dolfinx.common import Timer
+
+from admm_dolfinx._mpi import RankLayout, run_on_rank0
+from admm_dolfinx.linalg.condensed import CondensedOperator
+
+__all__ = ["RIGID_TOL", "compliance_matrix", "dense_extremes", "extremes_from_schur"]
 
 #: θ with 1 − r_a θ below this is a rigid motion (λ = ∞).
 RIGID_TOL = 1e-6
@@ -156,3 +162,51 @@ def _finite_spectrum(
     if finite.size == 0:
         raise RuntimeError("Every contact mode is a rigid motion of the body.")
     return finite, theta.size - finite.size
+
+
+def dense_extremes(problem, condensed, prefix, petsc_options):
+    """λ_min, λ_max from the condensed factorisation (a private one if None); collective."""
+    own = condensed is None
+    t0 = time.perf_counter()
+    if own:
+        condensed = CondensedOperator(problem, prefix + "schur_", petsc_options)
+    try:
+        t1 = time.perf_counter()
+
+        # the rigid directions M^½ N d of the floating motions, in the weights' node order
+        c = problem.contact
+        layout = RankLayout(problem.comm, c.dofs.size)
+        rigid = layout.gather(problem.rigid_motions.normal_motion * np.sqrt(c.mass))
+        # the affine pressures 1, x, y (, z) on Γ_C, to estimate λ_max
+        smooth = layout.gather(np.vstack([np.ones(c.dofs.size), c.coordinates.T]) * np.sqrt(c.mass))
+
+        def dense() -> tuple[float, float, int]:
+            with Timer("admm_dolfinx: r* dense pencil"):
+                return extremes_from_schur(
+                    condensed.schur,
+                    condensed.k_cc,
+                    condensed.support.weights,
+                    rigid=rigid.T,
+                    smooth=smooth.T,
+                )
+
+        def failure(name: str, text: str, _: bool) -> Exception:
+            if name == "RuntimeError":  # the explained failures of extremes_from_schur
+                return RuntimeError(text)
+            return RuntimeError(f"The dense r* failed on rank 0: {name}: {text}")
+
+        lambda_min, lambda_max, rigid = run_on_rank0(problem.comm, dense, failure)
+        details = {
+            "method": "dense",
+            "m": problem.contact.num_global,
+            "c": condensed.support.size,
+            "rigid_modes": rigid,
+            "solves_min": 0,
+            "solves_max": 0,
+            "time_factorization": t1 - t0 if own else 0.0,
+            "time_dense": time.perf_counter() - t1,
+        }
+    finally:
+        if own:
+            condensed.destroy()
+    return lambda_min, lambda_max, details

@@ -16,7 +16,7 @@ is the one entry point; the method is an explicit choice (``method``):
   number of processes to round-off; the ADMM then solves with the same factorisation.
 * ``"local"`` (the default elsewhere): no factorisation of the whole body. λ_min on
   layers of cells along Γ_C, λ_max by multigrid LOBPCG on the full-space pencil
-  (:mod:`admm_dolfinx.penalty.extremes`); to the eigenvalue tolerance ``tol``, and,
+  (:mod:`admm_dolfinx.penalty.iterative`); to the eigenvalue tolerance ``tol``, and,
   through the multigrid's aggregates, dependent on the partition at that level.
 * ``"factorised"``: both ends by Krylov–Schur on operators applied with factorisations
   of the body (Â for the exact Schur complement, A + r_a NᵀMN for λ_max), in the
@@ -37,26 +37,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from dolfinx.common import Timer
-from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx._mpi import RankLayout, run_on_rank0
 from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.linalg.operators import PenalisedOperator
-from admm_dolfinx.penalty.contact_operators import (
-    ContactSpace,
-    SchurOperator,
-    largest_eigenvalue,
-    projected_stiffness,
-)
-from admm_dolfinx.penalty.dense import extremes_from_schur
-from admm_dolfinx.penalty.extremes import (
-    NeedsFactorisation,
-    lambda_max_factorised,
-    lambda_max_multigrid,
-    lambda_min_from_layers,
-)
+from admm_dolfinx.penalty.dense import dense_extremes
+from admm_dolfinx.penalty.iterative import iterative_extremes
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["DEFAULT_PENALTY_TOL", "PENALTY_METHODS", "PenaltyEstimate", "estimate_penalty"]
@@ -164,115 +150,15 @@ def estimate_penalty(
         method = "dense" if dense else "local"
     if method == "dense":
         condensed = operator if shared_condensed else None
-        lambda_min, lambda_max, details = _dense_extremes(problem, condensed, prefix, petsc_options)
+        lambda_min, lambda_max, details = dense_extremes(problem, condensed, prefix, petsc_options)
         details["tol"] = 0.0
         return _finish(lambda_min, lambda_max, details, t_start)
-    if shared_condensed:  # the iterative method factorises other matrices: a private one
+    if shared_condensed:  # the iterative methods factorise other matrices: a private one
         operator = None
-    space = ContactSpace(problem)
-    own_operator = operator is None
-    if operator is None:
-        operator = PenalisedOperator(problem, prefix, petsc_options)
-    schur = None
-    vectors: list[PETSc.Vec] = []
-    local = method == "local"
-    details: dict[str, Any] = {"method": method, "tol": tol, "m": space.m}
-    try:
-        # ---- λ_min = 1 / μ_max(M^{-½} S M^{-½})
-        with Timer("admm_dolfinx: r* lambda_min"):
-            t0 = time.perf_counter()
-            start = space.start_vector()
-            vectors.append(start)
-            if local:
-                mu, its, layers, local_solves = lambda_min_from_layers(
-                    space, tol, max_it, start, prefix, petsc_options, vectors
-                )
-                details.update(layers=layers[0], layer_steps=layers[1], solves_min=local_solves)
-            else:
-                hat = projected_stiffness(problem.A, space.map)
-                operator.load(hat, "the projected stiffness P A P + c NᵀN (Schur complement)")
-                hat.destroy()
-                schur = SchurOperator(space, problem.A, space.map, operator)
-                mu, vec, its = largest_eigenvalue(
-                    space, schur, prefix + "lmin_", tol, max_it, [], start
-                )
-                vectors.append(vec)
-                details.update(layers="all", layer_steps=0, solves_min=operator.solves)
-            lambda_min = 1.0 / mu
-            details.update(time_min=time.perf_counter() - t0, restarts_min=its)
-
-        # ---- λ_max from θ_max, the largest eigenvalue of K x = θ (A + r_a K) x
-        with Timer("admm_dolfinx: r* lambda_max"):
-            t0 = time.perf_counter()
-            info = None
-            if local:
-                try:
-                    lambda_max, info = lambda_max_multigrid(space, lambda_min, tol, max_it, prefix)
-                except NeedsFactorisation as reason:
-                    logger.info("λ_max by factorisation instead of multigrid: %s", reason)
-            if info is None:
-                lambda_max, info = lambda_max_factorised(
-                    space, operator, lambda_min, tol, max_it, prefix, start
-                )
-            details.update(info, time_max=time.perf_counter() - t0)
-    finally:
-        if schur is not None:
-            schur.free()
-        for vec in vectors:
-            vec.destroy()
-        space.destroy()
-        if own_operator:
-            operator.destroy()
-
+    lambda_min, lambda_max, details = iterative_extremes(
+        problem, method, tol, max_it, operator, prefix, petsc_options
+    )
     return _finish(lambda_min, lambda_max, details, t_start)
-
-
-def _dense_extremes(problem, condensed, prefix, petsc_options):
-    """λ_min, λ_max from the condensed factorisation (a private one if None); collective."""
-    own = condensed is None
-    t0 = time.perf_counter()
-    if own:
-        condensed = CondensedOperator(problem, prefix + "schur_", petsc_options)
-    try:
-        t1 = time.perf_counter()
-
-        # the rigid directions M^½ N d of the floating motions, in the weights' node order
-        c = problem.contact
-        layout = RankLayout(problem.comm, c.dofs.size)
-        rigid = layout.gather(problem.rigid_motions.normal_motion * np.sqrt(c.mass))
-        # the affine pressures 1, x, y (, z) on Γ_C, to estimate λ_max
-        smooth = layout.gather(np.vstack([np.ones(c.dofs.size), c.coordinates.T]) * np.sqrt(c.mass))
-
-        def dense() -> tuple[float, float, int]:
-            with Timer("admm_dolfinx: r* dense pencil"):
-                return extremes_from_schur(
-                    condensed.schur,
-                    condensed.k_cc,
-                    condensed.support.weights,
-                    rigid=rigid.T,
-                    smooth=smooth.T,
-                )
-
-        def failure(name: str, text: str, _: bool) -> Exception:
-            if name == "RuntimeError":  # the explained failures of extremes_from_schur
-                return RuntimeError(text)
-            return RuntimeError(f"The dense r* failed on rank 0: {name}: {text}")
-
-        lambda_min, lambda_max, rigid = run_on_rank0(problem.comm, dense, failure)
-        details = {
-            "method": "dense",
-            "m": problem.contact.num_global,
-            "c": condensed.support.size,
-            "rigid_modes": rigid,
-            "solves_min": 0,
-            "solves_max": 0,
-            "time_factorization": t1 - t0 if own else 0.0,
-            "time_dense": time.perf_counter() - t1,
-        }
-    finally:
-        if own:
-            condensed.destroy()
-    return lambda_min, lambda_max, details
 
 
 def _finish(lambda_min, lambda_max, details, t_start) -> PenaltyEstimate:

@@ -18,7 +18,7 @@ the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r is
   0–2): μ_min / λ_max = 0.41–0.97, so :data:`MU_MIN_FRACTION` = ½ is within a
   factor 2 of it, and r within √2.
 * **μ_max** belongs to a short-wave mode at the edge of Γ_C, so it is computed like
-  λ_min in :mod:`admm_dolfinx.penalty.extremes`, on a layer of cells along Γ_C with
+  λ_min in :mod:`admm_dolfinx.penalty.iterative`, on a layer of cells along Γ_C with
   the rest of the body held fixed (stiffer than the body, so a lower bound, which
   grows to μ_max with the layer): two rings (:data:`LAYER_RINGS`). SLEPc solves the
   layer's generalised problem Nᵀ(M + βL_Γ)N x = μ A_L x with a factorisation of A_L.

@@ -40,12 +40,16 @@ factorisation of its own small Â. At tolerances ≤ 1e-6 the exact S is used.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
+from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from admm_dolfinx._logging import get_logger
+from admm_dolfinx.linalg.operators import PenalisedOperator
 from admm_dolfinx.penalty.contact_operators import (
     ComplianceOperator,
     ContactSpace,
@@ -62,6 +66,8 @@ from admm_dolfinx.penalty.lobpcg import (
     largest_generalized_eigenpair,
     rigid_body_modes,
 )
+
+logger = get_logger(__name__)
 
 __all__ = [
     "NeedsFactorisation",
@@ -313,3 +319,74 @@ def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
         time_multigrid_setup=counts.get("multigrid_setup", 0.0),
     )
     return lambda_max, info
+
+
+def iterative_extremes(problem, method, tol, max_it, operator, prefix, petsc_options):
+    """λ_min, λ_max and details by the ``"local"`` or ``"factorised"`` method; collective.
+
+    Args:
+        problem: The contact problem.
+        method: ``"local"`` (layers and multigrid) or ``"factorised"``.
+        tol: Eigenvalue tolerance.
+        max_it: Krylov–Schur restarts.
+        operator: A :class:`~admm_dolfinx.linalg.operators.PenalisedOperator` to share
+            factorisations with (None: a private one).
+        prefix: Options prefix of the eigensolvers and factorisations.
+        petsc_options: Options of the factorisations.
+    """
+    space = ContactSpace(problem)
+    own_operator = operator is None
+    if operator is None:
+        operator = PenalisedOperator(problem, prefix, petsc_options)
+    schur = None
+    vectors: list[PETSc.Vec] = []
+    local = method == "local"
+    details: dict[str, Any] = {"method": method, "tol": tol, "m": space.m}
+    try:
+        # ---- λ_min = 1 / μ_max(M^{-½} S M^{-½})
+        with Timer("admm_dolfinx: r* lambda_min"):
+            t0 = time.perf_counter()
+            start = space.start_vector()
+            vectors.append(start)
+            if local:
+                mu, its, layers, local_solves = lambda_min_from_layers(
+                    space, tol, max_it, start, prefix, petsc_options, vectors
+                )
+                details.update(layers=layers[0], layer_steps=layers[1], solves_min=local_solves)
+            else:
+                hat = projected_stiffness(problem.A, space.map)
+                operator.load(hat, "the projected stiffness P A P + c NᵀN (Schur complement)")
+                hat.destroy()
+                schur = SchurOperator(space, problem.A, space.map, operator)
+                mu, vec, its = largest_eigenvalue(
+                    space, schur, prefix + "lmin_", tol, max_it, [], start
+                )
+                vectors.append(vec)
+                details.update(layers="all", layer_steps=0, solves_min=operator.solves)
+            lambda_min = 1.0 / mu
+            details.update(time_min=time.perf_counter() - t0, restarts_min=its)
+
+        # ---- λ_max from θ_max, the largest eigenvalue of K x = θ (A + r_a K) x
+        with Timer("admm_dolfinx: r* lambda_max"):
+            t0 = time.perf_counter()
+            info = None
+            if local:
+                try:
+                    lambda_max, info = lambda_max_multigrid(space, lambda_min, tol, max_it, prefix)
+                except NeedsFactorisation as reason:
+                    logger.info("λ_max by factorisation instead of multigrid: %s", reason)
+            if info is None:
+                lambda_max, info = lambda_max_factorised(
+                    space, operator, lambda_min, tol, max_it, prefix, start
+                )
+            details.update(info, time_max=time.perf_counter() - t0)
+    finally:
+        if schur is not None:
+            schur.free()
+        for vec in vectors:
+            vec.destroy()
+        space.destroy()
+        if own_operator:
+            operator.destroy()
+
+    return lambda_min, lambda_max, details
