@@ -28,7 +28,8 @@ from admm_dolfinx.linalg.surface_metric import SurfaceMetric
 __all__ = ["MAX_ACTIVE_SET_ROUNDS", "SurfaceProjection"]
 
 #: Rounds of the active-set method per projection before it gives up. With a warm
-#: start it needs 1–3; it is finite for M-matrices and in practice for any mesh.
+#: start it needs few (``result.projection`` counts them); it is finite for M-matrices
+#: and in practice for any mesh.
 MAX_ACTIVE_SET_ROUNDS = 100
 
 

@@ -17,9 +17,9 @@ complement S_C + r K_CC, so
 
 Keeping C to the end constrains MUMPS's ordering (it runs AMD where A + rK gets AMF
 in 2D), which makes this factorisation, and somewhat its substitutions, dearer than
-those of A + rK: 1.2× (Example 1, h = 1/64) to 1.6× (h = 1/256) in 2D, where C is a
-curve of O(n^½) dofs (``benchmarks/penalty_cost.py`` prints both factorisations and
-what the condensed path adds to a solve). In 3D C is a surface of O(n^⅔) dofs, whose
+those of A + rK in 2D, where C is a curve of O(n^½) dofs (``python
+benchmarks/penalty_cost.py`` prints both factorisations and what the condensed path
+adds to a solve). In 3D C is a surface of O(n^⅔) dofs, whose
 dense front of c³/3 flops dominates the factorisation, so
 :func:`admm_dolfinx.penalty.estimate.estimate_penalty` and the solver use it in 2D only.
 
@@ -195,10 +195,10 @@ class CondensedOperator(FactorisedOperator):
         t0 = time.perf_counter()
         self.support = ContactSupport.build(problem)
         index_set = PETSc.IS().createGeneral(self.support.dofs, comm=comm)
-        # MUMPS's symmetric Schur complement loses accuracy on badly scaled values
-        # (measured: S_C 6e-4 off at E = 1e-16, where LU and the plain Cholesky are
-        # exact): it factorises A / s, s the stiffness scale, and the values are scaled
-        # back here.
+        # MUMPS's symmetric Schur complement loses accuracy on badly scaled values (at
+        # E = 1e-16, where LU and the plain Cholesky stay exact:
+        # tests/reliability/test_wrong_answers.py::test_scale_invariance): it
+        # factorises A / s, s the stiffness scale, and the values are scaled back here.
         self._scale = problem.stiffness_scale
         self.matrix = problem.A.duplicate(copy=True)
         self.matrix.scale(1.0 / self._scale)

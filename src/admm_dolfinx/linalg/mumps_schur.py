@@ -56,8 +56,8 @@ def full_symmetric(block: npt.NDArray[np.float64], serial: bool) -> npt.NDArray[
     ``block`` is the Schur buffer read column by column. For a symmetric factorisation
     MUMPS fills one triangle only: the lower one on one process, the lower one by rows
     (the upper one read by columns) when the factorisation is distributed. The other
-    triangle is not zeroed and may hold scratch values (measured: a quarter of it at
-    m = 512 on 2 processes), so it is never read.
+    triangle is not zeroed and may hold scratch values (seen under MPI), so it is never
+    read.
     """
     half = np.tril(block) if serial else np.triu(block)
     return half + np.tril(half, -1).T if serial else half + np.triu(half, 1).T

@@ -38,9 +38,9 @@ DEFAULT_FACTOR_OPTIONS: dict[str, Any] = {
     "pc_factor_mat_solver_type": "mumps",
 }
 
-#: MUMPS ordering in 2D: approximate minimum fill (AMF). Measured by
-#: ``benchmarks/orderings.py``: 0.5-0.75× the factorisation time of MUMPS's own
-#: choice (METIS) on every 2D mesh, the same substitution time; in 3D METIS stays.
+#: MUMPS ordering in 2D: approximate minimum fill (AMF), faster to factorise than
+#: MUMPS's own choice (METIS) on every 2D mesh of ``python benchmarks/orderings.py``,
+#: at the same substitution time; in 3D METIS stays.
 #: With a Schur complement (:mod:`admm_dolfinx.linalg.condensed`) MUMPS runs AMD instead.
 ORDERING_2D: dict[str, Any] = {"mat_mumps_icntl_7": 2}
 

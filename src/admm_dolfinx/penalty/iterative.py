@@ -80,7 +80,7 @@ __all__ = [
 #: A guess of λ_max/λ_min used to pick the auxiliary r_a = 1/(κ_guess λ_min); if the
 #: measured r_a λ_max is too large, r_a is lowered and λ_max recomputed.
 _KAPPA_GUESS = 1e4
-#: Accept r_a when r_a λ_max ≤ this (then λ = θ/(1 − r_aθ) amplifies errors ≤ 5x).
+#: Accept r_a when r_a λ_max ≤ this (then λ = θ/(1 − r_aθ) amplifies errors ≤ 5×).
 _MAX_RA_LAMBDA = 4.0
 #: A trial pressure whose part M-orthogonal to the previous ones is below this fraction
 #: of sqrt|Γ_C| depends on them on Γ_C (round-off leaves ~1e-16) and is dropped.
@@ -88,10 +88,9 @@ _DEPENDENT_PRESSURE = 1e-8
 #: LOBPCG iterations allowed before λ_max falls back to a factorisation.
 _MULTIGRID_MAX_IT = 200
 #: LOBPCG's residual tolerance relative to the eigenvalue tolerance. A residual test
-#: at tol itself can stop inside a cluster of top eigenvalues (Example 3 level 2:
-#: λ_max 1.1 % low at tol 1e-2); half of it keeps λ_max within 1e-3 on every measured
-#: mesh (``benchmarks/penalty_accuracy.py``) at a third of the iterations of a tenth
-#: (257k-dof Example 3, measured with one-V-cycle starts: 10 instead of 28).
+#: at tol itself can stop inside a cluster of top eigenvalues; half of it keeps λ_max
+#: well within tol on every mesh of ``python benchmarks/penalty_accuracy.py``, at far
+#: fewer iterations than a tenth.
 _MULTIGRID_TOL = 0.5
 
 

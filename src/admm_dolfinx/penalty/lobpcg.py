@@ -29,11 +29,13 @@ from admm_dolfinx.linalg.petsc import apply_options, solve_top_eigenpair
 __all__ = ["BLOCK_SIZE", "gram_matrix", "largest_generalized_eigenpair", "rigid_body_modes"]
 
 #: LOBPCG block size: two vectors resolve a nearly double top eigenvalue (symmetric
-#: bodies) at the cost of two V-cycles per iteration; measured faster than 1 or 4.
+#: bodies) at the cost of two V-cycles per iteration (faster than 1 or 4 in
+#: ``python benchmarks/penalty_cost.py``).
 BLOCK_SIZE = 2
-#: Multigrid-preconditioned CG steps per trial load for LOBPCG's start. One V-cycle
-#: per load (a single step) left the 3D block on a ball 20-24 LOBPCG iterations from
-#: the top eigenvector; four steps cut that to 7-8, at three extra V-cycles per load.
+#: Multigrid-preconditioned CG steps per trial load for LOBPCG's start: a single
+#: V-cycle per load leaves LOBPCG far from the top eigenvector on the 3D block on a
+#: ball; four cut its iterations by about a factor of three, at three extra V-cycles
+#: per load (``python benchmarks/penalty_cost.py``).
 START_CG_STEPS = 4
 
 

@@ -14,17 +14,17 @@ the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r is
   surface-gradient energy, so their μ is their λ: they cap μ_min at about λ_max.
   The minimum itself lies a little below, at a mode of intermediate wavelength,
   where neither term dominates; it is a global mode, as dear to compute as λ_max.
-  Measured with the dense pencil on Example 3 and three variants of it (levels
-  0–2): μ_min / λ_max = 0.41–0.97, so :data:`MU_MIN_FRACTION` = ½ is within a
-  factor 2 of it, and r within √2.
+  :data:`MU_MIN_FRACTION` = ½ is within a factor 2 of the measured ratio on the
+  meshes of ``python benchmarks/surface_metric.py --part rule`` (Example 3 and three
+  variants), and r within √2.
 * **μ_max** belongs to a short-wave mode at the edge of Γ_C, so it is computed like
   λ_min in :mod:`admm_dolfinx.penalty.iterative`, on a layer of cells along Γ_C with
   the rest of the body held fixed (stiffer than the body, so a lower bound, which
   grows to μ_max with the layer): two rings (:data:`LAYER_RINGS`). SLEPc solves the
   layer's generalised problem Nᵀ(M + βL_Γ)N x = μ A_L x with a factorisation of A_L.
-* **r = 1 / sqrt(½ λ_max μ_max)**: 0.93–1.39 times the best 1/sqrt(μ_min μ_max) on
-  the measured meshes, where ADMM needs at most two iterations more than at the best
-  r (``python benchmarks/surface_metric.py --part rule``).
+* **r = 1 / sqrt(½ λ_max μ_max)**, close to the best 1/sqrt(μ_min μ_max) on those
+  meshes, where ADMM needs at most two iterations more than at the best r (``python
+  benchmarks/surface_metric.py --part rule`` prints both).
 """
 
 from __future__ import annotations
@@ -52,11 +52,11 @@ __all__ = ["SurfacePenalty", "estimate_surface_penalty"]
 logger = get_logger(__name__)
 
 #: Rings of cells of the layer on which μ_max is computed. Its mode is the roughest
-#: pattern at the edge of Γ_C: on every mesh of ``benchmarks/surface_metric.py
-#: --part rule`` two rings give 0.95–1.0 of the whole body's μ_max, which moves r by
-#: at most 2.7 %; r itself is 0.93–1.39 of the best there. Four rings cost more.
+#: pattern at the edge of Γ_C: on every mesh of ``python benchmarks/surface_metric.py
+#: --part rule`` two rings give nearly the whole body's μ_max (the table prints the
+#: ratio); four rings cost more.
 LAYER_RINGS = 2
-#: μ_min / λ_max assumed for r (measured 0.41–0.97: see the module docstring).
+#: μ_min / λ_max assumed for r (see the module docstring).
 MU_MIN_FRACTION = 0.5
 #: Eigenvalue tolerance of each layer solve.
 EIGEN_TOL = 1e-3

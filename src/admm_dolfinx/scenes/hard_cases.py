@@ -45,8 +45,9 @@ def strip(
     right-diagonal triangles (DOLFINx's builtin mesh, no gmsh). A uniform pressure on
     the top side pushes the strip down by more than the gap, so that it lies on the
     plane except near the clamp. The strip bends like a beam: its smoothest contact
-    mode is 1e9–1e10 times more compliant than its roughest (κ of the contact pencil),
-    which is what broke the dense r* and needs active-set polishing to converge.
+    mode is orders of magnitude more compliant than its roughest (``python
+    benchmarks/strips.py`` prints κ of the contact pencil), which is what broke the
+    dense r* and needs active-set polishing to converge.
     Γ_C = the bottom side, with ``cells`` contact nodes (the clamped corner aside).
     """
     tags = {"bottom": 1, "top": 2, "left": 3}

@@ -441,9 +441,9 @@ def pressed_ball(
     """A half-disc (2D) or half-ball (3D) pressed far onto a rigid plane.
 
     The lower half of a disc or ball of radius R, centred at height R + ``gap`` above
-    the plane x_gdim = 0; its flat top (through the centre) is moved down by ``push``
-    (4× the gap by default), so that the contact zone spans a wide angle: with the
-    defaults its half-width exceeds R/3. The case that separates the two contact models
+    the plane x_gdim = 0; its flat top (through the centre) is moved down by ``push``,
+    so that the contact zone spans a wide angle (``tests/problem/test_contact_model.py``
+    presses it until the half-width exceeds R/3). The case that separates the two contact models
     (:mod:`admm_dolfinx.problem.obstacles`): along the body's normal, nodes far from the lowest
     point sink below the plane.
 
