@@ -232,7 +232,7 @@ class RankLayout:
             This rank's block.
         """
         vector = k is None
-        rows_k = 1 if vector else int(k)
+        rows_k = 1 if k is None else int(k)
         if self.comm.size == 1:
             full = np.asarray(rows, dtype=np.float64)
             return full.copy() if vector else full.reshape(rows_k, -1).copy()

@@ -132,7 +132,8 @@ class ActiveSetPolish:
         self._compliance = self._shifted = None
         if self.comm.rank == 0:
             try:  # never raise on rank 0 alone: the other ranks would wait
-                self._compliance = compliance_matrix(self._schur, self._k_cc, self._weights, r)
+                schur, k_cc, weights = self._dense_data()
+                self._compliance = compliance_matrix(schur, k_cc, weights, r)
                 self._shifted = np.eye(self._compliance.shape[0]) - r * self._compliance
             except Exception as error:  # polishing is an option: the ADMM goes on without
                 self._compliance = self._shifted = None
@@ -142,6 +143,18 @@ class ActiveSetPolish:
                     error,
                 )
         self.setup_time = from_rank0(self.comm, time.perf_counter() - t0)
+
+    def _dense_data(
+        self,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """S_C, K_CC and W (rank 0).
+
+        Raises:
+            RuntimeError: On a rank without them (all but rank 0).
+        """
+        if self._schur is None or self._k_cc is None or self._weights is None:
+            raise RuntimeError("S_C, K_CC and W of the dense polish are on rank 0 only.")
+        return self._schur, self._k_cc, self._weights
 
     def reset(self) -> None:
         """Start a solve: read the current gap; forget the guesses tried; collective."""
@@ -180,6 +193,7 @@ class ActiveSetPolish:
             skip = self.time > budget
             if not skip:
                 try:  # never raise on rank 0 alone: the other ranks would wait
+                    assert data is not None  # gathered on rank 0
                     outcome, rounds = self._solve(data[0], data[1], data[2] > 0.5)
                 except Exception as error:  # an attempt that fails is one not taken
                     logger.warning("Polishing attempt failed: %s: %s", type(error).__name__, error)

@@ -165,6 +165,19 @@ class SparsePolish:
         digest = hashlib.sha1(np.packbits(active).tobytes()).digest()
         return b"".join(self.comm.allgather(digest))
 
+    def _factorisation(self) -> PETSc.KSP:
+        """The KSP of the factorisation that the first :meth:`_equality_solution` made.
+
+        Raises:
+            RuntimeError: If there is none (destroyed, or the first factorisation failed).
+        """
+        if self._ksp is None:
+            raise RuntimeError(
+                "The sparse active-set polish has no factorisation (it was destroyed, or "
+                "its first factorisation failed)."
+            )
+        return self._ksp
+
     def _equality_solution(self, active: npt.NDArray[np.bool_]):
         """(N u, λ) of the problem with (N u)_j = g_j on ``active``; collective."""
         problem, c = self.problem, self.problem.contact
@@ -177,7 +190,7 @@ class SparsePolish:
             if self._matrix is None:
                 self._matrix = hat.duplicate(copy=True)
                 self._matrix.setOption(PETSc.Mat.Option.SPD, True)
-                self._ksp = create_factor_solver(
+                ksp = self._ksp = create_factor_solver(
                     self._matrix,
                     self.prefix,
                     self._options,
@@ -186,8 +199,9 @@ class SparsePolish:
                 )
             else:
                 hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-                self._ksp.setOperators(self._matrix)
-                self._ksp.setUp()
+                ksp = self._factorisation()
+                ksp.setOperators(self._matrix)
+                ksp.setUp()
         finally:
             hat.destroy()
         # u_g: the prescribed normal displacement ĝ_j = g_j − (n_j − ñ_j)·u_D at active
@@ -204,8 +218,8 @@ class SparsePolish:
             # P: remove the active normal components
             nodal.scatter(nodal.gather(rhs), work, 1.0 / np.einsum("ij,ij->i", ntilde, ntilde))
             rhs.axpy(-1.0, work)
-            self._ksp.solve(rhs, x)
-            check_solve(self._ksp, "the sparse active-set polish")
+            ksp.solve(rhs, x)
+            check_solve(ksp, "the sparse active-set polish")
             x.axpy(1.0, x_g)
             problem.A.mult(x, work)
             work.aypx(-1.0, problem.load_vector())  # f − A u = NᵀMλ on the free dofs

@@ -68,6 +68,7 @@ class SurfaceProjection(PetscOwner):
         """Start a solve: the current gap (local part), and an empty contact set; collective."""
         g = self.layout.gather(gap)
         if self._qp is not None:
+            assert g is not None  # the QP and the gathered gap are both on rank 0
             self._qp.reset(g)
 
     def __call__(
@@ -98,7 +99,7 @@ class SurfaceProjection(PetscOwner):
 
         def step() -> npt.NDArray[np.float64]:
             assert self._qp is not None and data is not None
-            return self._qp.step(*data, r)
+            return self._qp.step(data[0], data[1], data[2], data[3], r)
 
         def failure(name: str, text: str, _: bool) -> Exception:
             return RuntimeError(f"The surface-metric projection (step 2) failed: {name}: {text}")
@@ -108,9 +109,13 @@ class SurfaceProjection(PetscOwner):
         local = self.layout.scatter(out, 3)
         return local[0], local[1], local[2]
 
-    def statistics(self) -> dict[str, int]:
-        """Active-set rounds and factorisations (rank 0's sparse Cholesky) so far; collective."""
-        counts = None
+    def statistics(self) -> dict[str, int] | None:
+        """Active-set rounds and factorisations (rank 0's sparse Cholesky) so far; collective.
+
+        Returns:
+            The counts on every rank (None once the projection is destroyed).
+        """
+        counts: dict[str, int] | None = None
         if self._qp is not None:
             counts = {"rounds": self._qp.rounds, "factorisations": self._qp.factorisations}
         return from_rank0(self.comm, counts)
@@ -154,7 +159,9 @@ class _ActiveSetQP:
         self.R.mult(self._x, self._y)
         return self._y.array.copy()
 
-    def _solve_free(self, free: npt.NDArray[np.intp], rhs: npt.NDArray[np.float64]):
+    def _solve_free(
+        self, free: npt.NDArray[np.intp], rhs: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.float64]:
         key = free.tobytes()
         if key != self._key:
             for obj in (self._ksp, self._sub, self._free_set):
@@ -173,11 +180,13 @@ class _ActiveSetQP:
             self._ksp.setUp()
             self._key = key
             self.factorisations += 1
-        b, x = self._sub.createVecs()
+        ksp, sub = self._ksp, self._sub
+        assert ksp is not None and sub is not None  # made above for this free set
+        b, x = sub.createVecs()
         try:
             b.array[:] = rhs
-            self._ksp.solve(b, x)
-            if self._ksp.getConvergedReason() < 0:
+            ksp.solve(b, x)
+            if ksp.getConvergedReason() < 0:
                 raise RuntimeError("the factorisation of M + βL_Γ on the free nodes failed")
             return x.array.copy()
         finally:
@@ -209,7 +218,14 @@ class _ActiveSetQP:
             "penalty_metric='mass' to ADMMSolver"
         )
 
-    def step(self, xi, lam, p_in, normal, r):
+    def step(
+        self,
+        xi: npt.NDArray[np.float64],
+        lam: npt.NDArray[np.float64],
+        p_in: npt.NDArray[np.float64],
+        normal: npt.NDArray[np.float64],
+        r: float,
+    ) -> npt.NDArray[np.float64]:
         """(p⁺, λ⁺, d) of :meth:`SurfaceProjection.__call__`, on gathered arrays."""
         mass = self.mass
         rq = self._mult(xi) + mass * lam / r  # R̂ q = R̂ ξ + M λ / r

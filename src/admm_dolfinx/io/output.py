@@ -115,7 +115,7 @@ def remove_stale_staging(folder: str | os.PathLike) -> list[Path]:
     """
     root = Path(folder)
     host = socket.gethostname().replace("-", "_") or "host"
-    removed = []
+    removed: list[Path] = []
     if not root.is_dir():
         return removed
     for entry in root.iterdir():

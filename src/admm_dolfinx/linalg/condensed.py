@@ -205,8 +205,8 @@ class CondensedOperator(FactorisedOperator):
         self.matrix.setOption(PETSc.Mat.Option.SPD, True)
         self.ksp = PETSc.KSP().create(comm)
         self.factor: PETSc.Mat | None = None
-        self.schur = None
-        self.k_cc = None
+        self.schur: npt.NDArray[np.float64] | None = None
+        self.k_cc: npt.NDArray[np.float64] | None = None
         try:
             with Timer("admm_dolfinx: factorisation (A condensed onto Γ_C)"):
                 self.ksp.setOperators(self.matrix)
@@ -283,6 +283,8 @@ class CondensedOperator(FactorisedOperator):
                 "solves with a Schur complement serially only); under MPI use "
                 "PenalisedOperator."
             )
+        # one process (can_solve): rank 0 holds S_C and K_CC
+        assert self.schur is not None and self.k_cc is not None
         with Timer("admm_dolfinx: factorisation (S_C + r K_CC)"):
             t0 = time.perf_counter()
             with SchurBlock(self.factor) as block:
@@ -296,14 +298,16 @@ class CondensedOperator(FactorisedOperator):
         """Solve (A + rK) x = b: condensation, dense solve, expansion."""
         if not self.penalty == self.penalty:  # NaN: no r yet
             raise RuntimeError("set_penalty must be called before solve.")
-        self.ksp.solve(b, x)
+        ksp = self._factorisation()
+        ksp.solve(b, x)
         x.scale(1.0 / self._scale)  # (A + rK)⁻¹ = ((A + rK) / s)⁻¹ / s
         self.solves += 1
-        check_solve(self.ksp, f"A + r NᵀMN at r = {self.penalty:.6g} (condensed)")
+        check_solve(ksp, f"A + r NᵀMN at r = {self.penalty:.6g} (condensed)")
 
     def destroy(self) -> None:
         """Free the KSP (with the factors) and the matrix."""
-        if getattr(self, "factor", None) is not None:
-            self.factor.destroy()  # our reference: the KSP's release then frees MUMPS
+        factor = getattr(self, "factor", None)
+        if factor is not None:
+            factor.destroy()  # our reference: the KSP's release then frees MUMPS
             self.factor = None
         super().destroy()

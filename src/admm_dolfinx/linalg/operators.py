@@ -28,6 +28,20 @@ class FactorisedOperator(PetscOwner):
     matrix: PETSc.Mat | None = None
     ksp: PETSc.KSP | None = None
 
+    def _factorisation(self) -> PETSc.KSP:
+        """The KSP holding the factorisation.
+
+        Raises:
+            RuntimeError: If there is none yet (no :meth:`set_penalty`), or the operator
+                was destroyed.
+        """
+        if self.ksp is None:
+            raise RuntimeError(
+                f"{type(self).__name__} has no factorisation: call set_penalty() first "
+                "(or it was destroyed)."
+            )
+        return self.ksp
+
 
 class PenalisedOperator(FactorisedOperator):
     """A + r NᵀMN with a reusable factorisation.
@@ -100,24 +114,30 @@ class PenalisedOperator(FactorisedOperator):
                 self.matrix.setOption(PETSc.Mat.Option.SPD, True)
             else:
                 A.copy(self.matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-            self.matrix.axpy(r, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            matrix = self.matrix
+            matrix.axpy(r, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             self.timings["operator"] = time.perf_counter() - t0
         with Timer("admm_dolfinx: factorisation"):
             t0 = time.perf_counter()
-            self._ensure_ksp()
-            self.ksp.setUp()
+            self._ensure_ksp(matrix).setUp()
             self.timings["factorization"] = time.perf_counter() - t0
         self.penalty = float(r)
         self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
 
-    def _ensure_ksp(self) -> None:
-        """Create the KSP (factorising), or tell it that the matrix values changed."""
+    def _ensure_ksp(self, matrix: PETSc.Mat) -> PETSc.KSP:
+        """Create the KSP (factorising), or tell it that the matrix values changed.
+
+        Args:
+            matrix: The operator's matrix (:attr:`matrix`), its values set.
+
+        Returns:
+            The KSP.
+        """
         if self.ksp is None:
-            self.ksp = create_factor_solver(
-                self.matrix, self.prefix, self._options, self.problem.gdim
-            )
+            self.ksp = create_factor_solver(matrix, self.prefix, self._options, self.problem.gdim)
         else:
-            self.ksp.setOperators(self.matrix)
+            self.ksp.setOperators(matrix)
+        return self.ksp
 
     def load(self, values: PETSc.Mat, label: str) -> None:
         """Factorise another SPD matrix whose pattern is a subset of A's (numeric only).
@@ -132,11 +152,11 @@ class PenalisedOperator(FactorisedOperator):
         if self.matrix is None:
             self.matrix = self.problem.A.duplicate(copy=False)
             self.matrix.setOption(PETSc.Mat.Option.SPD, True)
-        self.matrix.zeroEntries()
-        self.matrix.axpy(1.0, values, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        matrix = self.matrix
+        matrix.zeroEntries()
+        matrix.axpy(1.0, values, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         with Timer(f"admm_dolfinx: factorisation ({label})"):
-            self._ensure_ksp()
-            self.ksp.setUp()
+            self._ensure_ksp(matrix).setUp()
         self.penalty = float("nan")
         self._label = label
 

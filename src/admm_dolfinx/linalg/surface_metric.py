@@ -22,6 +22,8 @@ The choice of β and r is :mod:`admm_dolfinx.penalty.surface`'s.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 import ufl
@@ -57,15 +59,19 @@ class SurfaceMetric(PetscOwner):
     """
 
     _petsc_objects = ("surface_stiffness", "normal_map", "normal_stiffness")
+    # Assembled by the constructor (:meth:`_build`), freed and set to None by
+    # :meth:`destroy`, after which the metric is not to be used.
+    surface_stiffness: PETSc.Mat
+    normal_map: PETSc.Mat
+    normal_stiffness: PETSc.Mat
 
     def __init__(self, problem: ContactProblem):
         self.problem = problem
-        self.surface_stiffness = self.normal_map = self.normal_stiffness = None
-        self._rank0: dict | None = None
+        self._rank0: dict[str, Any] | None = None
         self._k_max_squared: float | None = None
         self._work: tuple[PETSc.Vec, PETSc.Vec] | None = None
         self._force: PETSc.Vec | None = None
-        try:
+        try:  # assigns the matrices; a failure frees those already made
             self._build()
         except BaseException:
             self.destroy()  # collective: every rank raised alike
@@ -117,7 +123,8 @@ class SurfaceMetric(PetscOwner):
         gathered = gather_csr(comm, csr)
         masses = self.layout.gather(c.mass)
 
-        def build() -> dict:
+        def build() -> dict[str, Any]:
+            assert gathered is not None  # gather_csr stacks the rows on rank 0
             indptr, indices, data = gathered
             m = self.layout.total
             laplacian = PETSc.Mat().createAIJ(
@@ -147,8 +154,21 @@ class SurfaceMetric(PetscOwner):
             )
         return self._k_max_squared
 
+    def _rank0_data(self) -> dict[str, Any]:
+        """L_Γ (``"laplacian"``) and M (``"mass"``) on the contact nodes; rank 0 only.
+
+        Raises:
+            RuntimeError: On another rank, or after :meth:`destroy`.
+        """
+        if self._rank0 is None:
+            raise RuntimeError(
+                "L_Γ on the contact nodes is held by rank 0 only, until the metric is destroyed."
+            )
+        return self._rank0
+
     def _largest_surface_eigenvalue(self) -> float:
-        laplacian, mass = self._rank0["laplacian"], self._rank0["mass"]
+        rank0 = self._rank0_data()
+        laplacian, mass = rank0["laplacian"], rank0["mass"]
         scaled = laplacian.copy()
         scale = scaled.createVecLeft()
         scale.array[:] = 1.0 / np.sqrt(mass)
@@ -246,6 +266,7 @@ class SurfaceMetric(PetscOwner):
             if vec is not None:
                 vec.destroy()
         self._work = self._force = None
-        if getattr(self, "_rank0", None) is not None:
-            self._rank0["laplacian"].destroy()
+        rank0 = getattr(self, "_rank0", None)
+        if rank0 is not None:
+            rank0["laplacian"].destroy()
             self._rank0 = None

@@ -129,7 +129,7 @@ def extremes_from_schur(
         r_a = _scaled_auxiliary_penalty(schur, k_cc, weights, r_a, smooth, rigid)
     known = rigid is not None
     complement = None
-    if known and rigid.size:
+    if rigid is not None and rigid.size:
         m = weights.shape[1]
         q = np.linalg.qr(np.asarray(rigid, dtype=float).reshape(m, -1), mode="complete")[0]
         complement = q[:, rigid.shape[1] :]

@@ -1,6 +1,6 @@
 """The automatic penalty r* = 1/sqrt(λ_min λ_max) (Koko 2019, §4–5 and Algorithm 5).
 
-ADMM contracts mode i of the dual error by |1 − rλ_i| / (1 + rλ_i), where λ_i are the
+ADMM contracts mode i of the dual error by abs(1 − rλ_i) / (1 + rλ_i), where λ_i are the
 non-zero eigenvalues of A⁻¹NᵀMN, i.e. of the m × m pencil on the contact dofs
 
     M w = λ S w,     S = Schur complement of A onto the contact normal dofs,
@@ -70,7 +70,8 @@ class PenaltyEstimate:
         time: Wall-clock seconds, factorisations included (none when the caller's
             condensed factorisation was used).
         details: ``method`` (``"dense"`` or ``"iterative"``), ``rigid_modes``; dense:
-            ``c`` = |C|, ``time_factorization`` (0 if shared), ``time_dense``;
+            ``c`` (the number of contact dofs), ``time_factorization`` (0 if shared),
+            ``time_dense``;
             iterative: solves and seconds per extreme (``solves_min``, ``time_min``,
             ``solves_max``, ``time_max``; ``time_multigrid_setup`` when λ_max came
             from multigrid), the auxiliary r_a.
@@ -153,7 +154,9 @@ def estimate_penalty(
         lambda_min, lambda_max, details = dense_extremes(problem, condensed, prefix, petsc_options)
         details["tol"] = 0.0
         return _finish(lambda_min, lambda_max, details, t_start)
-    if shared_condensed:  # the iterative methods factorise other matrices: a private one
+    # a shared condensed operator: the iterative methods factorise other matrices, in a
+    # private one
+    if isinstance(operator, CondensedOperator):
         operator = None
     lambda_min, lambda_max, details = iterative_extremes(
         problem, method, tol, max_it, operator, prefix, petsc_options

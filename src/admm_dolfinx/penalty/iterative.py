@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -66,6 +67,7 @@ from admm_dolfinx.penalty.lobpcg import (
     largest_generalized_eigenpair,
     rigid_body_modes,
 )
+from admm_dolfinx.problem.contact_problem import ContactProblem
 
 logger = get_logger(__name__)
 
@@ -254,7 +256,9 @@ class NeedsFactorisation(Exception):
     """The multigrid λ_max does not apply (floating body) or did not converge."""
 
 
-def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
+def lambda_max_multigrid(
+    space: ContactSpace, lambda_min: float, tol: float, max_it: int, prefix: str
+) -> tuple[float, dict[str, Any]]:
     """λ_max from LOBPCG + AMG on the full-space pencil K x = θ (A + r_a K) x.
 
     No factorisation: each iteration costs one AMG V-cycle per block vector. The
@@ -320,7 +324,15 @@ def lambda_max_multigrid(space, lambda_min, tol, max_it, prefix):
     return lambda_max, info
 
 
-def iterative_extremes(problem, method, tol, max_it, operator, prefix, petsc_options):
+def iterative_extremes(
+    problem: ContactProblem,
+    method: str,
+    tol: float,
+    max_it: int,
+    operator: PenalisedOperator | None,
+    prefix: str,
+    petsc_options: Mapping[str, Any] | None,
+) -> tuple[float, float, dict[str, Any]]:
     """λ_min, λ_max and details by the ``"local"`` or ``"factorised"`` method; collective.
 
     Args:

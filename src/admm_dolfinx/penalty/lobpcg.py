@@ -118,7 +118,8 @@ def largest_generalized_eigenpair(
         RuntimeError: If LOBPCG does not converge within ``max_it`` iterations.
     """
     eps = SLEPc.EPS().create(comm=B.getComm())
-    multigrid, start = None, []
+    multigrid = None
+    start: list[PETSc.Vec] = []
     try:
         eps.setOperators(K, B)
         eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)

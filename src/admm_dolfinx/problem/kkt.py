@@ -33,7 +33,7 @@ class KKTResiduals:
     Attributes:
         primal_feasibility: max_j (N u − g)_j⁺ / ‖u‖_∞ (penetration).
         dual_feasibility: max_j (−λ_j)⁺ / ‖λ‖_∞ (adhesion, impossible here).
-        complementarity: max_j λ_j |g_j − (N u)_j| / (‖λ‖_∞ ‖u‖_∞).
+        complementarity: max_j λ_j abs(g_j − (N u)_j) / (‖λ‖_∞ ‖u‖_∞).
         equilibrium: ‖A u − f + NᵀMλ‖₂ / max(‖A u‖₂, ‖f‖₂, ‖NᵀMλ‖₂), free dofs only.
     """
 
@@ -70,7 +70,7 @@ def gap_residuals(
         u_scale: ‖u‖_∞ (global).
 
     Returns:
-        (max_j (N u − g)_j⁺ / ‖u‖_∞,  max_j λ_j |g_j − (N u)_j| / (‖λ‖_∞ ‖u‖_∞)).
+        (max_j (N u − g)_j⁺ / ‖u‖_∞,  max_j λ_j abs(g_j − (N u)_j) / (‖λ‖_∞ ‖u‖_∞)).
     """
     gap = problem.contact.gap
     slack = np.where(np.isfinite(gap), gap - nu, np.inf)

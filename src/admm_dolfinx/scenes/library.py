@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import ufl
-from dolfinx import fem, mesh
+from dolfinx import fem
+from dolfinx.mesh import Mesh, MeshTags
 from mpi4py import MPI
 
 from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -23,6 +24,7 @@ from admm_dolfinx.scenes.meshing import (
     check_lengths,
     check_level,
     lower_ball,
+    mesh_and_facet_tags,
     quarter_disc,
     rectangle,
     structured_rectangle,
@@ -64,8 +66,8 @@ class Scene:
     """
 
     name: str
-    mesh: mesh.Mesh
-    facet_tags: mesh.MeshTags
+    mesh: Mesh
+    facet_tags: MeshTags
     markers: dict[str, int]
     material: LinearElastic
     V: fem.FunctionSpace
@@ -128,7 +130,7 @@ def example1(
     tags = {"left": 1, "top": 2, "bottom": 3, "right": 4}
     if mesher == "gmsh":
         data = rectangle(comm, (0.0, 0.0), (2.0, 1.0), h, tags)
-        msh, facet_tags = data.mesh, data.facet_tags
+        msh, facet_tags = mesh_and_facet_tags(data)
     elif mesher == "builtin":
         n = round(1.0 / h)
         msh, facet_tags = structured_rectangle(comm, (0.0, 0.0), (2.0, 1.0), (2 * n, n), tags)
@@ -200,7 +202,7 @@ def example2(
     arc = 0.5 * np.pi * radius
     h_contact = arc / (34 * 2**level)
     data = quarter_disc(comm, radius, 1.1 * h_contact, h_contact, tags)
-    msh, facet_tags = data.mesh, data.facet_tags
+    msh, facet_tags = mesh_and_facet_tags(data)
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -313,7 +315,7 @@ def pressed_block(
     tags = {"bottom": 3, "top": 1, "sides": 4}
     lower, upper = (-0.5, -1.0, -half_depth), (0.5, 1.0, half_depth)
     data = box(comm, lower, upper, h_bottom, h_top, level, tags)
-    msh, facet_tags = data.mesh, data.facet_tags
+    msh, facet_tags = mesh_and_facet_tags(data)
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -393,7 +395,7 @@ def hertz(
     h_contact = half_width / 4.0 / 2**level
     tags = {"axis": 1, "top": 2, "arc": 3}
     data = quarter_disc(comm, radius, 0.6, h_contact, tags, refine_radius=1.5 * half_width)
-    msh, facet_tags = data.mesh, data.facet_tags
+    msh, facet_tags = mesh_and_facet_tags(data)
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -466,7 +468,7 @@ def pressed_ball(
     h_contact = h_contact or radius / (40 if gdim == 2 else 10)
     tags = {"top": 1, "surface": 2}
     data = lower_ball(comm, gdim, radius, h, h_contact, tags, refine_radius=0.7 * radius)
-    msh, facet_tags = data.mesh, data.facet_tags
+    msh, facet_tags = mesh_and_facet_tags(data)
     msh.geometry.x[:, gdim - 1] += gap
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (gdim,)))
@@ -561,7 +563,7 @@ def hertz_sphere(
         refine_radius=refine * half_width,
         quarter=True,
     )
-    msh, facet_tags = data.mesh, data.facet_tags
+    msh, facet_tags = mesh_and_facet_tags(data)
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)

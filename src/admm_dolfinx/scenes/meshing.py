@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Callable, Iterator
+from types import ModuleType
 
 import numpy as np
 from dolfinx import mesh
@@ -28,6 +29,7 @@ __all__ = [
     "global_bounds",
     "gmsh_session",
     "lower_ball",
+    "mesh_and_facet_tags",
     "quarter_disc",
     "rectangle",
     "structured_rectangle",
@@ -35,6 +37,23 @@ __all__ = [
 ]
 
 MeshData = gmshio.MeshData
+
+
+def mesh_and_facet_tags(data: MeshData) -> tuple[mesh.Mesh, mesh.MeshTags]:
+    """The mesh and the facet tags of gmsh mesh data (the scenes tag their boundaries).
+
+    Args:
+        data: What :func:`build_on_root` returned.
+
+    Returns:
+        The mesh and its facet tags.
+
+    Raises:
+        RuntimeError: If the gmsh model had no physical groups of facets.
+    """
+    if data.facet_tags is None:
+        raise RuntimeError("The gmsh mesh has no facet tags (no physical groups of facets).")
+    return data.mesh, data.facet_tags
 
 
 def check_lengths(**lengths: float | None) -> None:
@@ -60,7 +79,7 @@ def check_level(name: str, value: int) -> int:
     return int(value)
 
 
-def _import_gmsh():
+def _import_gmsh() -> ModuleType:
     try:
         import gmsh
     except ImportError as err:  # pragma: no cover - depends on the environment
@@ -71,7 +90,7 @@ def _import_gmsh():
 
 
 @contextlib.contextmanager
-def gmsh_session(name: str) -> Iterator[object]:
+def gmsh_session(name: str) -> Iterator[ModuleType]:
     """Initialise gmsh quietly with a fresh model, and finalise it afterwards.
 
     Args:
@@ -96,7 +115,7 @@ def gmsh_session(name: str) -> Iterator[object]:
 
 
 def build_on_root(
-    comm: MPI.Comm, name: str, gdim: int, build: Callable[[object], None]
+    comm: MPI.Comm, name: str, gdim: int, build: Callable[[ModuleType], None]
 ) -> MeshData:
     """Run ``build(gmsh)`` on rank 0 and distribute the mesh over ``comm``.
 

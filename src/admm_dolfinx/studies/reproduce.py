@@ -15,7 +15,7 @@ import csv
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,7 +23,7 @@ from mpi4py import MPI
 
 from admm_dolfinx.admm.solver import ADMMSolver
 from admm_dolfinx.io.output import atomic_file, rank0_write
-from admm_dolfinx.scenes.library import example1, example2, example3
+from admm_dolfinx.scenes.library import Scene, example1, example2, example3
 from admm_dolfinx.studies.sweep import paper_penalty_grid, sample_penalty
 
 __all__ = ["PAPER_MODEL", "TABLES", "Table", "run_table"]
@@ -105,7 +105,7 @@ def _fixed_penalty_table(
     name: str,
     title: str,
     progress: Progress,
-    meshes: list[tuple[str, Callable[[], object], tuple]],
+    meshes: Sequence[tuple[str, Callable[[], Scene], tuple]],
     r_star: float,
     r_bar: float,
 ) -> Table:
