@@ -160,3 +160,28 @@ def test_cli_bad_input_is_an_error_message(argv, message, capsys):
     assert main(argv) == 1
     if MPI.COMM_WORLD.rank == 0:
         assert message in capsys.readouterr().err
+
+
+def test_version(capsys):
+    import admm_dolfinx
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"admm-dolfinx {admm_dolfinx.__version__}"
+
+
+@pytest.mark.parametrize(
+    ("argv", "verbose"),
+    [
+        (["-v", "run", "example1"], True),
+        (["run", "example1", "-v"], True),
+        (["run", "-v", "example1", "--h", "0.5"], True),
+        (["reproduce", "all", "--verbose"], True),
+        (["run", "example1"], False),
+    ],
+)
+def test_verbose_anywhere_on_the_command_line(argv, verbose):
+    from admm_dolfinx.cli import build_parser
+
+    assert build_parser().parse_args(argv).verbose is verbose

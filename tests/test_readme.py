@@ -45,3 +45,13 @@ def test_readme_union_obstacle():
     g, nu = union.signed_distance(np.array([[0.0, 0.5], [-3.0, 1.0]]))
     np.testing.assert_allclose(g, [0.5, (-3.0 + 2.0) / np.sqrt(2.0)])
     np.testing.assert_allclose(nu, [[0.0, 1.0], [np.sqrt(0.5), np.sqrt(0.5)]])
+
+
+def test_readme_is_short_and_names_what_it_promises():
+    """A newcomer reads it in five minutes; what it points to exists."""
+    text = README.read_text()
+    assert len(text.splitlines()) <= 200
+    root = README.parent
+    for path in ("LICENSE", "CITATION.cff", "docs/index.md", "containers", "demos/load_steps.py"):
+        assert (root / path).exists(), path
+    assert "hal-02047516" in text

@@ -110,6 +110,13 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+def _version() -> str:
+    """The installed package's version."""
+    from admm_dolfinx import __version__
+
+    return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also documents every command in ``--help``)."""
     parser = argparse.ArgumentParser(
@@ -117,13 +124,25 @@ def build_parser() -> argparse.ArgumentParser:
         description="Frictionless contact of an elastic body with a rigid obstacle, solved "
         "by ADMM with the automatic penalty r* (Koko 2019). Run under mpirun for parallel.",
     )
+    # -v is accepted before and after the command: the subcommands share it, and their
+    # copy only sets it when given (SUPPRESS), so it never resets the main parser's.
+    verbose = argparse.ArgumentParser(add_help=False)
+    verbose.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        default=argparse.SUPPRESS,
+        help="log every ADMM iteration (rank 0)",
+    )
     parser.add_argument(
         "-v", "--verbose", action="store_true", help="log every ADMM iteration (rank 0)"
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser(
         "run",
+        parents=[verbose],
         help="solve one scene and print the result summary",
         description="Solve one of the paper's scenes: example1 (rectangle "
         "on a foundation), example2 (Hertz quarter cylinder), example3 "
@@ -187,6 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser(
         "reproduce",
+        parents=[verbose],
         help="regenerate the paper's Tables 1-6",
         description="Regenerate a table of the paper from scratch: the "
         "paper's numbers and ours side by side, as markdown on the "

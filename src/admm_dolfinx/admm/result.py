@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
-from typing import Any
+from dataclasses import asdict, dataclass, field, fields
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
-from dolfinx import fem
+from dolfinx import fem, mesh
 
 from admm_dolfinx.admm.settings import ADMMSettings
 from admm_dolfinx.penalty.estimate import PenaltyEstimate
 from admm_dolfinx.penalty.surface import SurfacePenalty
+from admm_dolfinx.problem.contact_set import Marker
 from admm_dolfinx.problem.kkt import KKTResiduals
+
+if TYPE_CHECKING:
+    from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["STATUSES", "ADMMConvergenceError", "ADMMResult", "PolishInfo", "Timings"]
 
@@ -133,6 +137,13 @@ class ADMMResult:
         settings: The solver's settings.
         plan: What the solver chose and why (:class:`~admm_dolfinx.admm.plan.SolverPlan`).
         max_pressure: max λ over Γ_C.
+        contact_force: The total force of the obstacle on the body, a gdim vector
+            (:func:`admm_dolfinx.problem.forces.contact_force`): it balances the
+            support reactions and the loads to round-off.
+        contact_area: The measure of the contact zone, Σ M_jj over the active nodes
+            (a length in 2D; :func:`admm_dolfinx.problem.contact_zone.contact_area`).
+        mean_pressure: The mean pressure over the contact zone.
+        problem: The problem that was solved (for the collective outputs below).
         penalty_estimate: The r* estimate, if the penalty was automatic.
         surface_penalty: β and r of the surface metric, if it was used.
         polish: What polishing did (None when off).
@@ -157,16 +168,62 @@ class ADMMResult:
     settings: ADMMSettings
     plan: Any = None
     max_pressure: float = 0.0
+    contact_force: npt.NDArray[np.float64] | None = None
+    contact_area: float = 0.0
+    mean_pressure: float = 0.0
+    problem: ContactProblem | None = field(default=None, repr=False, compare=False)
     penalty_estimate: PenaltyEstimate | None = None
     surface_penalty: SurfacePenalty | None = None
     polish: PolishInfo | None = None
     projection: dict[str, int] | None = None
     warning: str = ""
 
+    def _solved_problem(self) -> ContactProblem:
+        if self.problem is None:
+            raise RuntimeError("This result does not know its problem (it was built by hand).")
+        return self.problem
+
+    def reaction_force(self, marker: Marker) -> npt.NDArray[np.float64]:
+        """The force of the supports on the facets tagged ``marker`` (tag or tuple); collective.
+
+        See :func:`admm_dolfinx.problem.forces.reaction_force`.
+        """
+        from admm_dolfinx.problem.forces import reaction_force
+
+        return reaction_force(self._solved_problem(), self.u, marker, self.multiplier)
+
+    def gap(self) -> fem.Function:
+        """The remaining gap g − N u as a Function, zero off Γ_C; collective."""
+        from admm_dolfinx.problem.contact_zone import gap_function
+
+        return gap_function(self._solved_problem(), self.u)
+
+    def active_marker(self) -> fem.Function:
+        """The active set as a Function: 1 at contact nodes with λ > 0, else 0; collective."""
+        from admm_dolfinx.problem.contact_zone import active_marker
+
+        return active_marker(self._solved_problem(), self.multiplier)
+
+    def active_facets(self, value: int = 1) -> mesh.MeshTags:
+        """The facets of Γ_C in contact (all vertices active) as MeshTags; collective."""
+        from admm_dolfinx.problem.contact_zone import active_facets
+
+        return active_facets(self._solved_problem(), self.multiplier, value)
+
     @property
     def polished(self) -> bool:
         """Whether the solve ended from a polished (exact active-set) state."""
         return self.polish is not None and self.polish.polished_at is not None
+
+    @property
+    def _gdim(self) -> int:
+        return 0 if self.contact_force is None else int(np.size(self.contact_force))
+
+    @property
+    def _force_text(self) -> str:
+        if self.contact_force is None:
+            return "–"
+        return "(" + ", ".join(f"{value:.6g}" for value in self.contact_force) + ")"
 
     def summary(self) -> str:
         """A short human-readable report (what the demos print)."""
@@ -195,7 +252,10 @@ class ADMMResult:
             lines.append(f"  plan: {self.plan.describe()}")
         lines += [
             f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
-            f"  max pressure = {self.max_pressure:.6g}",
+            f"  max pressure = {self.max_pressure:.6g}, mean pressure = "
+            f"{self.mean_pressure:.6g}, contact {'length' if self._gdim == 2 else 'area'} = "
+            f"{self.contact_area:.6g}",
+            f"  contact force = {self._force_text}",
             "  KKT residuals (relative): "
             f"feasibility {k.primal_feasibility:.2e}, complementarity "
             f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}",

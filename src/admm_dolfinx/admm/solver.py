@@ -91,6 +91,8 @@ from admm_dolfinx.penalty.estimate import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.penalty.surface import SurfacePenalty, estimate_surface_penalty
 from admm_dolfinx.problem.checks import check_finite
 from admm_dolfinx.problem.contact_problem import ContactProblem
+from admm_dolfinx.problem.contact_zone import contact_area, mean_pressure
+from admm_dolfinx.problem.forces import contact_force
 from admm_dolfinx.problem.kkt import KKTResiduals, _ratio, compute_kkt_residuals, gap_residuals
 
 __all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]
@@ -183,7 +185,7 @@ class ADMMSolver:
             elif plan.polish == "sparse":
                 self.polisher = SparsePolish(problem, prefixes["polish"], plan.factor_options)
             self._time_schur = private.timings["factorization"] if private else 0.0
-            penalty = s.penalty
+            penalty = s.penalty  # a number unless "auto" (then r* or the surface r below)
             if plan.penalty != "given":
                 # a condensed operator gives r* densely and serves the ADMM at r*; a
                 # factorised one shares its symbolic analysis with r*'s factorisations
@@ -200,6 +202,15 @@ class ADMMSolver:
                 )
                 penalty = self.penalty_estimate.r
             if plan.metric == "surface":
+                operator = self.operator
+                if not isinstance(operator, PenalisedOperator):
+                    raise ValueError(
+                        "penalty_metric='surface' penalises with Nᵀ(M + βL_Γ)N, which the "
+                        "condensed step 1 cannot: pass condensed=None (or penalty_metric="
+                        "'mass')."
+                    )
+                # the settings refuse a given penalty with the surface metric: r* is here
+                assert self.penalty_estimate is not None
                 self._metric = SurfaceMetric(problem)
                 self.surface_penalty = estimate_surface_penalty(
                     problem,
@@ -209,9 +220,11 @@ class ADMMSolver:
                     petsc_options=plan.factor_options,
                 )
                 beta = self.surface_penalty.beta
-                self.operator.use_penalty_matrix(self._metric.penalty_matrix(beta), "Nᵀ(M + βL_Γ)N")
+                operator.use_penalty_matrix(self._metric.penalty_matrix(beta), "Nᵀ(M + βL_Γ)N")
                 self._step = SurfaceMetricStep(self._metric, beta)
                 penalty = self.surface_penalty.r
+            if isinstance(penalty, str):  # pragma: no cover - make_plan's invariant
+                raise RuntimeError(f"internal: no penalty was found for penalty={penalty!r}.")
             self.set_penalty(penalty)
         except BaseException:
             self.destroy()  # collective: a failure here is raised on every rank
@@ -227,9 +240,20 @@ class ADMMSolver:
         return self.polisher is not None
 
     @property
+    def _step1(self) -> PenalisedOperator | CondensedOperator:
+        """The step-1 operator.
+
+        Raises:
+            RuntimeError: If the solver's construction did not get as far as building it.
+        """
+        if self.operator is None:
+            raise RuntimeError("This ADMMSolver has no step-1 operator: its construction failed.")
+        return self.operator
+
+    @property
     def penalty(self) -> float:
         """The current penalty parameter r."""
-        return self.operator.penalty
+        return self._step1.penalty
 
     def set_penalty(self, r: float) -> None:
         """Set r and make step 1 solve with A_r = A + r NᵀMN (factorised once per r).
@@ -241,7 +265,7 @@ class ADMMSolver:
             r: Penalty parameter, > 0.
         """
         r = check_penalty(r)
-        self.operator.set_penalty(r)
+        self._step1.set_penalty(r)
         if self.polisher is not None:
             self.polisher.set_penalty(r)
 
@@ -265,7 +289,7 @@ class ADMMSolver:
     @property
     def ksp(self) -> PETSc.KSP:
         """The step-1 KSP (factorised A + rNᵀMN, or A condensed onto Γ_C)."""
-        return self.operator.ksp
+        return self._step1.ksp
 
     def summary(self) -> str:
         """The plan and the penalty, before (or without) a solve."""
@@ -367,7 +391,7 @@ class ADMMSolver:
         # W-norm of z = (p, λ): p weighted by M, λ by M/r² (both in displacement units)
         weights = np.concatenate([c.mass, c.mass / r**2])
         mixer = AndersonMixer(s.anderson, weights, problem.comm) if s.anderson else None
-        step, polisher = self._step, self.polisher
+        step, polisher, step1 = self._step, self.polisher, self._step1
 
         u = fem.Function(problem.V, name="displacement")
         x = u.x.petsc_vec
@@ -397,7 +421,7 @@ class ADMMSolver:
                     b0.copy(b)
                     problem.add_normal_force(b, r * p_in - lam_in)
                     step.add_force(b, p_in, r)
-                    self.operator.solve(b, x)
+                    step1.solve(b, x)
                     nu = problem.apply_normal(x)
                     # steps 2-3, with over-relaxation
                     p, lam, d = step(alpha * nu + (1.0 - alpha) * p_in, lam_in, p_in, nu, r)
@@ -426,6 +450,7 @@ class ADMMSolver:
                         status = "callback"
                         break
                     if rejected:
+                        assert accepted is not None  # a proposal is judged against it
                         z, proposal = accepted[0].copy(), _PLAIN  # the plain step instead
                         continue
                     accepted, proposal, z = (Tz, res), _PLAIN, Tz
@@ -562,6 +587,10 @@ class ADMMSolver:
             settings=self.settings,
             plan=self.plan,
             max_pressure=problem.global_norm(lam, np.inf),
+            contact_force=contact_force(problem, lam),
+            contact_area=contact_area(problem, lam),
+            mean_pressure=mean_pressure(problem, lam),
+            problem=problem,
             penalty_estimate=self.penalty_estimate,
             surface_penalty=self.surface_penalty,
             polish=polish,

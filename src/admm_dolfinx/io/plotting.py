@@ -20,6 +20,24 @@ from admm_dolfinx._mpi import gather_concat, gather_objects
 from admm_dolfinx.io.output import atomic_path, rank0_write
 from admm_dolfinx.problem.material import LinearElastic
 
+
+def _prefer_egl() -> None:
+    """Render off-screen through EGL when there is no X display and EGL exists.
+
+    VTK's default X window would otherwise first fail to reach an X server (warning
+    "bad X server connection") and then fall back. A user's own choice of
+    ``VTK_DEFAULT_OPENGL_WINDOW`` is kept.
+    """
+    if os.environ.get("DISPLAY") or "VTK_DEFAULT_OPENGL_WINDOW" in os.environ:
+        return
+    import ctypes.util
+
+    if ctypes.util.find_library("EGL"):
+        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkEGLRenderWindow"
+
+
+_prefer_egl()
+
 __all__ = [
     "obstacle_surface",
     "plot_contact_pressure",
@@ -57,7 +75,9 @@ def _gathered_grid(u: fem.Function, cell_values: fem.Function):
 
     V = u.function_space
     comm = V.mesh.comm
-    topology, cell_types, points = plot.vtk_mesh(V)
+    # dolfinx registers vtk_mesh's FunctionSpace variant with functools.singledispatch;
+    # mypy sees only the Mesh one
+    topology, cell_types, points = plot.vtk_mesh(V)  # type: ignore[arg-type]
     bs = V.dofmap.index_map_bs
     n_points = points.shape[0]
     values_u = u.x.array.reshape(-1, bs)[:n_points]
@@ -117,7 +137,7 @@ def plot_deformed_von_mises(
         if magnification is None:
             magnification = max(1.0, 0.05 * size / umax) if umax > 0 else 1.0
         warped = grid.warp_by_vector("u", factor=magnification)
-        plotter = pyvista.Plotter(off_screen=True, window_size=(1200, 800))
+        plotter = pyvista.Plotter(off_screen=True, window_size=[1200, 800])
         plotter.add_mesh(grid, style="wireframe", color="grey", opacity=0.25)
         plotter.add_mesh(
             warped,
@@ -132,7 +152,9 @@ def plot_deformed_von_mises(
             plotter.add_mesh(obstacle_mesh, color="saddlebrown", opacity=0.3, line_width=3)
         plotter.add_text(f"{title}  (displacement x{magnification:.3g})", font_size=11)
         if np.allclose(grid.points[:, 2], 0.0):
-            plotter.view_xy()
+            # Plotter.view_xy and .show_axes forward to the active renderer; called there
+            # because their functools.wraps signatures hide their `self` from mypy
+            plotter.renderer.view_xy()
         else:  # from below, so that the contact face is in view
             center = np.asarray(grid.center)
             plotter.camera_position = [
@@ -140,7 +162,7 @@ def plot_deformed_von_mises(
                 tuple(center),
                 (0, 0, 1),
             ]
-        plotter.show_axes()
+        plotter.renderer.show_axes()
         try:
             _atomic_png(Path(path), lambda tmp: plotter.screenshot(tmp))
         finally:

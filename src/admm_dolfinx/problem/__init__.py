@@ -1,4 +1,4 @@
-"""The discrete contact problem: obstacles, the contact set, input checks, KKT, forces.
+"""The discrete contact problem: obstacles, the contact set, checks, KKT, forces, contact zone.
 
 Stage 1 of the pipeline scene → problem → penalty → solver → result → output: from
 the user's UFL forms, Dirichlet conditions, facet tags and an analytic obstacle to

@@ -36,6 +36,8 @@ from admm_dolfinx.problem.checks import check_dirichlet_conditions, check_finite
 from admm_dolfinx.problem.contact_set import (
     CONTACT_NORMALS,
     ContactSet,
+    Marker,
+    as_marker,
     build_contact_set,
     check_contact_facets,
     compute_gap,
@@ -142,7 +144,8 @@ class ContactProblem(PetscOwner):
         L: Linear UFL form of the loads on V.
         bcs: Dirichlet conditions on V (or its sub-spaces); may be empty.
         facet_tags: Facet tags of V's mesh.
-        contact_marker: Tag value of the candidate contact facets Γ_C.
+        contact_marker: Tag of the candidate contact facets Γ_C, or a tuple of tags
+            whose facets together form Γ_C (as in ``ds((1, 2))``).
         obstacle: The rigid obstacle.
         contact_normal: Along which direction non-penetration is measured at each
             contact node: ``"obstacle"`` (default) the obstacle's normal at the node's
@@ -169,6 +172,12 @@ class ContactProblem(PetscOwner):
 
     #: What :meth:`destroy` frees (matrices and vectors of the problem).
     _petsc_objects = ("A", "K", "_load", "_lift_k")
+    # Assembled by the constructor (:meth:`_assemble_operators`), freed and set to None
+    # by :meth:`destroy`, after which the problem is not to be used.
+    A: PETSc.Mat
+    K: PETSc.Mat
+    _load: PETSc.Vec
+    _lift_k: PETSc.Vec
 
     def __init__(
         self,
@@ -176,7 +185,7 @@ class ContactProblem(PetscOwner):
         L: ufl.Form,
         bcs: Sequence[fem.DirichletBC],
         facet_tags: mesh.MeshTags,
-        contact_marker: int,
+        contact_marker: Marker,
         obstacle: Obstacle,
         *,
         contact_normal: str = "obstacle",
@@ -206,8 +215,7 @@ class ContactProblem(PetscOwner):
                 f"`facet_tags` tag entities of dimension {facet_tags.dim}; facet tags of "
                 f"dimension {msh.topology.dim - 1} are needed."
             )
-        if isinstance(contact_marker, bool) or not isinstance(contact_marker, int | np.integer):
-            raise TypeError(f"`contact_marker` must be an int, got {contact_marker!r}.")
+        contact_marker = as_marker(contact_marker)
         if isinstance(bcs, fem.DirichletBC):
             raise TypeError("`bcs` must be a list of DirichletBC objects: pass [bc], not bc.")
         bcs = list(bcs or [])
@@ -216,7 +224,7 @@ class ContactProblem(PetscOwner):
                 raise TypeError(f"`bcs` must hold dolfinx DirichletBC objects, got {type(bc)}.")
         check_dirichlet_conditions(V, bcs)
 
-        check_contact_facets(msh, facet_tags, int(contact_marker))
+        check_contact_facets(msh, facet_tags, contact_marker)
 
         self.V = V
         self.mesh = msh
@@ -224,7 +232,8 @@ class ContactProblem(PetscOwner):
         self.bcs = bcs
         self.obstacle = obstacle
         self.facet_tags = facet_tags
-        self.contact_marker = int(contact_marker)
+        #: The tag, or tuple of tags, of Γ_C.
+        self.contact_marker: Marker = contact_marker
         #: (2, 3) lower and upper corners of the body (all ranks).
         self.bounds = mesh_bounds(msh)
         #: The body's size: the diagonal of its bounding box.
@@ -237,8 +246,7 @@ class ContactProblem(PetscOwner):
         #: Counts the changes of N (a moved curved obstacle turns the obstacle's
         #: normals): a solver built on an older N rebuilds its penalty and factors.
         self.operator_version = 0
-        self.A = self.K = self._load = self._lift_k = None
-        try:
+        try:  # assigns A, K, _load and _lift_k; a failure frees those already made
             self._assemble_operators(a, L, form_compiler_options, jit_options)
         except BaseException:
             self.destroy()  # collective: every rank raised alike
@@ -409,7 +417,9 @@ class ContactProblem(PetscOwner):
             c.normal.x.array.reshape(-1, bs)[c.nodes, : self.gdim] = directions
             c.normal.x.scatter_forward()
             self.K.zeroEntries()
-            fem_petsc.assemble_matrix(self.K, self._k, bcs=self.bcs, diag=0.0)
+            # in place into K: dolfinx registers this signature with functools.singledispatch,
+            # and mypy sees only the base one (which takes a form first)
+            fem_petsc.assemble_matrix(self.K, self._k, bcs=self.bcs, diag=0.0)  # type: ignore[misc]
             self.K.assemble()
             self._assemble_load()  # the lifting of K by the Dirichlet values
             self.rigid_motions = analyse_rigid_motions(
@@ -488,7 +498,7 @@ class ContactProblem(PetscOwner):
         """Recover λ from an equilibrium residual ``R = f − A u`` that equals ``NᵀMλ``.
 
         At contact node j, R_j = M_jj λ_j ñ_j with ñ_j the free part of n_j, hence
-        λ_j = (R_j · ñ_j) / (M_jj |ñ_j|²). Used by solvers that do not carry λ.
+        λ_j = (R_j · ñ_j) / (M_jj ‖ñ_j‖²). Used by solvers that do not carry λ.
 
         Args:
             residual: ``f − A u`` in V's layout.

@@ -52,13 +52,47 @@ VERTEX_RULE = {"quadrature_rule": "vertex", "quadrature_degree": 1}
 _FIXED_NORMAL_TOL = 1e-8
 
 
-def contact_measure(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int) -> ufl.Measure:
+#: A facet marker: one tag, or a tuple of tags whose facets together form the part
+#: (as in ``ds((1, 2))``).
+Marker = int | tuple[int, ...]
+
+
+def as_marker(marker: object, name: str = "contact_marker") -> Marker:
+    """Check a facet marker and return it as an int or a tuple of distinct ints.
+
+    Raises:
+        TypeError: If it is not an int or a non-empty sequence of ints (bools refused).
+    """
+
+    def one(value: object) -> int:
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise TypeError(
+                f"`{name}` must be a facet tag (int) or a tuple of tags, got {marker!r}."
+            )
+        return int(value)
+
+    if isinstance(marker, list | tuple | np.ndarray):
+        values = tuple(dict.fromkeys(one(value) for value in marker))
+        if not values:
+            raise TypeError(f"`{name}` is an empty sequence; pass at least one facet tag.")
+        return values[0] if len(values) == 1 else values
+    return one(marker)
+
+
+def marked_facets(facet_tags: mesh.MeshTags, marker: Marker) -> npt.NDArray[np.int32]:
+    """The local facets tagged with ``marker`` (any of its tags), sorted."""
+    values = marker if isinstance(marker, tuple) else (marker,)
+    found = [facet_tags.find(value) for value in values]
+    return np.unique(np.concatenate(found)).astype(np.int32)
+
+
+def contact_measure(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -> ufl.Measure:
     """Return the vertex-rule exterior facet measure restricted to ``marker``.
 
     Args:
         msh: The body's mesh.
         facet_tags: Facet tags of the body's mesh.
-        marker: Value that marks the candidate contact facets Γ_C.
+        marker: Tag, or tuple of tags, of the candidate contact facets Γ_C.
 
     Returns:
         ``ds(marker)`` with the vertex quadrature rule.
@@ -111,7 +145,7 @@ class ContactSet:
     q_to_node: npt.NDArray[np.int64]
 
 
-def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int) -> int:
+def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -> int:
     """Check that ``marker`` tags at least one exterior facet; collective.
 
     Args:
@@ -127,7 +161,7 @@ def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: int)
             tagged facet is an interior facet.
     """
     tdim = msh.topology.dim
-    local = facet_tags.find(marker)
+    local = marked_facets(facet_tags, marker)
     msh.topology.create_connectivity(tdim - 1, tdim)
     exterior = mesh.exterior_facet_indices(msh.topology)
     n_interior = int(np.count_nonzero(~np.isin(local, exterior)))
@@ -189,7 +223,7 @@ CONTACT_NORMALS = ("obstacle", "body")
 def build_contact_set(
     V: fem.FunctionSpace,
     facet_tags: mesh.MeshTags,
-    marker: int,
+    marker: Marker,
     bcs: Sequence[fem.DirichletBC],
     obstacle: Obstacle,
     length_scale: float,
@@ -200,7 +234,7 @@ def build_contact_set(
     Args:
         V: P1 vector displacement space.
         facet_tags: Facet tags of V's mesh.
-        marker: Contact marker.
+        marker: Contact marker (a tag or a tuple of tags).
         bcs: Dirichlet conditions on V; a node whose normal displacement they fix is
             not a contact node.
         obstacle: The rigid obstacle.

@@ -19,6 +19,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx.problem.contact_problem import ContactProblem
+from admm_dolfinx.problem.contact_set import Marker, as_marker, marked_facets
 
 __all__ = ["contact_force", "reaction_force"]
 
@@ -47,7 +48,7 @@ def contact_force(problem: ContactProblem, multiplier: npt.ArrayLike) -> npt.NDA
 def reaction_force(
     problem: ContactProblem,
     u: fem.Function,
-    marker: int,
+    marker: Marker,
     multiplier: npt.ArrayLike | None = None,
 ) -> npt.NDArray[np.float64]:
     """The force on the body from the supports on the facets tagged ``marker``; collective.
@@ -55,7 +56,8 @@ def reaction_force(
     Args:
         problem: The contact problem (its forms and facet tags).
         u: The displacement (``result.u``).
-        marker: A facet tag of ``problem.facet_tags`` (typically a Dirichlet part).
+        marker: A facet tag of ``problem.facet_tags`` (typically a Dirichlet part), or a
+            tuple of tags.
         multiplier: λ (``result.multiplier``), to take the contact force out at nodes
             the part shares with Γ_C.
 
@@ -67,7 +69,8 @@ def reaction_force(
     """
     V, msh = problem.V, problem.mesh
     fdim = msh.topology.dim - 1
-    facets = problem.facet_tags.find(marker)
+    marker = as_marker(marker, "marker")
+    facets = marked_facets(problem.facet_tags, marker)
     if problem.comm.allreduce(facets.size, op=MPI.SUM) == 0:
         raise ValueError(f"No facets are tagged {marker}; pass a tag of problem.facet_tags.")
     bs = V.dofmap.index_map_bs

@@ -68,7 +68,7 @@ def hertz_errors(scene, problem, multiplier) -> HertzErrors:
     a, p0 = scene.info["a"], scene.info["p0"]
     order = np.argsort(x)
     xs, ls = x[order], lam[order]
-    k = int(np.flatnonzero(ls > 0).max())
+    k = int(np.max(np.flatnonzero(ls > 0)))
     inside = (float(xs[k]), float(xs[min(k + 1, xs.size - 1)]))
     a_error = max(inside[0] - a, a - inside[1], 0.0)
     if problem.gdim == 2:
@@ -86,7 +86,7 @@ def hertz_errors(scene, problem, multiplier) -> HertzErrors:
     force = float(np.linalg.norm(contact_force(problem, multiplier)))
     return HertzErrors(
         h=scene.h,
-        p0_error=float(ls.max() / p0 - 1.0),
+        p0_error=float(np.max(ls) / p0 - 1.0),
         a_inside=inside,
         a_error=a_error,
         l2_error=l2,
