@@ -1,6 +1,6 @@
 # admm_dolfinx: two commands on a fresh machine.
 #   make demo   Example 1 of the paper, end to end (creates/refreshes .venv first)
-#   make test   the test suite, serially and under mpiexec -n 2 (and -n 3, -n 4), every demo
+#   make test   lint and types (ruff, mypy), the test suite, serially and under mpiexec -n 2 (and -n 3, -n 4), every demo
 #               serially and under mpiexec -n 2, a quick `reproduce all`, and every
 #               benchmark at its smallest size
 # and, for reproduction:
@@ -11,7 +11,7 @@ PY := $(VENV)/bin/python
 # What `make venv` installs. The PyPI wheel `dolfinx-solver-real` (extra `fenics`) brings
 # DOLFINx, PETSc, SLEPc, MUMPS and MPICH; in a FEniCSx image use
 #   make venv VENV_FLAGS=--system-site-packages EXTRAS=scenes,plot,test,bench
-EXTRAS ?= fenics,scenes,plot,test,bench,dev
+EXTRAS ?= fenics,scenes,plot,test,bench,dev,docs
 VENV_FLAGS ?=
 # mpiexec of the venv (from the MPICH wheel) unless the environment provides one
 MPIEXEC ?= $(if $(wildcard $(VENV)/bin/mpiexec),$(VENV)/bin/mpiexec,mpiexec)
@@ -21,7 +21,7 @@ PYTEST := -m pytest -q -p no:cacheprovider
 export PYVISTA_OFF_SCREEN ?= true
 export OMP_NUM_THREADS ?= 1
 
-.PHONY: venv demo test test-serial test-mpi test-demos test-benchmarks reproduce reproduce-quick lint clean
+.PHONY: docs venv demo test test-serial test-mpi test-demos test-benchmarks reproduce reproduce-quick lint clean
 
 # The venv is rebuilt when the project's metadata changes (or was never built).
 $(VENV)/.installed: pyproject.toml tools/find-python.sh
@@ -35,7 +35,7 @@ venv: $(VENV)/.installed
 demo: venv
 	$(PY) demos/example1.py
 
-test: test-serial test-mpi reproduce-quick test-demos test-benchmarks
+test: lint test-serial test-mpi reproduce-quick test-demos test-benchmarks docs
 
 test-serial: venv
 	$(PY) $(PYTEST)
@@ -66,6 +66,12 @@ reproduce-quick: venv
 lint: venv
 	$(VENV)/bin/ruff check src tests demos benchmarks
 	$(VENV)/bin/ruff format --check src tests demos benchmarks
+	$(VENV)/bin/mypy
+
+# The book: every demo executed (with its default sizes), the API from the docstrings.
+docs: venv
+	$(PY) -m sphinx -q -b html -W --keep-going docs docs/_build/html
+	@echo "the book: docs/_build/html/index.html"
 
 clean:
 	rm -rf $(VENV) out_* .pytest_cache

@@ -1,12 +1,23 @@
-"""Shared output of the benchmark scripts: a markdown table on stdout and a CSV file.
+"""Shared output of the benchmark scripts: a markdown table, a CSV file and a book page.
 
 Imported by the scripts in this folder (``python benchmarks/<script>.py`` puts the
 folder on ``sys.path``). Call on rank 0 only.
+
+A full run (no ``--quick``, ``--small`` or ``--only``) also writes the script's page
+of the book, ``docs/benchmarks/<script>.md``: every table it printed, the command that
+produced it, the date and the machine, and appends a line to ``CHANGELOG.md``. The
+pages are never edited by hand. ``ADMM_BENCHMARK_PAGE=0`` turns this off (the smoke
+run of ``make test`` does).
 """
 
 from __future__ import annotations
 
+import atexit
 import csv
+import datetime
+import os
+import platform
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,16 +29,79 @@ def markdown_table(rows: Sequence[dict]) -> str:
     keys: list[str] = []
     for row in rows:
         keys += [k for k in row if k not in keys]
-    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    lines += ["| " + " | ".join(str(row.get(k, "–")) for k in keys) + " |" for row in rows]
+
+    def cell(value: object) -> str:  # a "|" inside a cell would split it
+        return str(value).replace("|", "\\|")
+
+    lines = ["| " + " | ".join(cell(k) for k in keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(cell(row.get(k, "–")) for k in keys) + " |" for row in rows]
     return "\n".join(lines)
 
 
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = ROOT / "docs" / "benchmarks"
+_PARTIAL_RUN = ("--quick", "--small", "--only")
+_tables: list[tuple[str, str]] = []
+
+
+def _page_wanted() -> bool:
+    if os.environ.get("ADMM_BENCHMARK_PAGE", "1") == "0":
+        return False
+    return not any(arg.split("=")[0] in _PARTIAL_RUN for arg in sys.argv[1:])
+
+
+def _script() -> Path:
+    return Path(sys.argv[0]).resolve()
+
+
+def _write_page() -> None:
+    """The script's book page from the tables of this run (atexit; rank 0)."""
+    if not _tables or sys.exc_info()[0] is not None:
+        return
+    script = _script()
+    main = sys.modules.get("__main__")
+    doc = (getattr(main, "__doc__", None) or script.stem).strip()
+    title = doc.splitlines()[0].rstrip(".")
+    command = " ".join(["python", f"benchmarks/{script.name}", *sys.argv[1:]])
+    size = os.environ.get("PMI_SIZE") or os.environ.get("OMPI_COMM_WORLD_SIZE") or "1"
+    if size != "1":
+        command = f"mpiexec -n {size} {command}"
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    lines = [
+        f"# {title}",
+        "",
+        f"Written by `{command}` on {stamp} ({machine}); do not edit by hand: rerun the",
+        "command to refresh it.",
+        "",
+        "```text",
+        doc,
+        "```",
+    ]
+    for name, table in _tables:
+        lines += ["", f"## {name}", "", table]
+    PAGES.mkdir(parents=True, exist_ok=True)
+    with atomic_file(PAGES / f"{script.stem}.md") as fh:
+        fh.write("\n".join(lines) + "\n")
+    changelog = ROOT / "CHANGELOG.md"
+    if changelog.exists():
+        with changelog.open("a") as fh:
+            fh.write(f"- {stamp}: `{command}` rewrote docs/benchmarks/{script.stem}.md\n")
+
+
 def print_and_save(rows: Sequence[dict], path: Path) -> None:
-    """Print the markdown table and write the CSV whole (temporary file, then rename)."""
+    """Print the markdown table and write the CSV whole (temporary file, then rename).
+
+    On a full run the table also goes to the script's book page (see the module).
+    """
     if not rows:
         return
-    print(markdown_table(rows), flush=True)
+    table = markdown_table(rows)
+    print(table, flush=True)
+    if _page_wanted():
+        if not _tables:
+            atexit.register(_write_page)
+        _tables.append((Path(path).stem.replace("_", " "), table))
     keys: list[str] = []
     for row in rows:
         keys += [k for k in row if k not in keys]

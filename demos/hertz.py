@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 
 from mpi4py import MPI
 
@@ -48,7 +49,8 @@ parser.add_argument(
 )
 parser.add_argument("--out", default="out_hertz", help="output folder")
 parser.add_argument("--verbose", action="store_true", help="log every ADMM iteration")
-args = parser.parse_args()
+# In the book this runs in a Jupyter kernel, whose own arguments are not the demo's.
+args = parser.parse_args([] if "ipykernel" in sys.modules else None)
 
 comm = MPI.COMM_WORLD
 logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")

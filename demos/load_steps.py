@@ -28,6 +28,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import admm_dolfinx  # first: it loads the MPI and PETSc that DOLFINx was built with
@@ -46,7 +47,8 @@ parser.add_argument("--n", type=int, default=64, help="cells along the bottom (d
 parser.add_argument("--steps", type=int, default=6, help="load steps (default 6)")
 parser.add_argument("--depth", type=float, default=0.04, help="final top displacement")
 parser.add_argument("--out", default="out_load_steps", help="output folder")
-args = parser.parse_args()
+# In the book this runs in a Jupyter kernel, whose own arguments are not the demo's.
+args = parser.parse_args([] if "ipykernel" in sys.modules else None)
 
 comm = MPI.COMM_WORLD
 

@@ -23,6 +23,7 @@ DEMOS: list[tuple[str, list[str]]] = [
     ("block_on_ball.py", ["--level", "0", "--samples", "10"]),
     ("block_on_ball.py", ["--level", "0", "--polish"]),
     ("load_steps.py", ["--n", "16", "--steps", "3"]),
+    ("gmsh_part.py", ["--h", "0.15"]),
 ]
 
 

@@ -1,0 +1,1 @@
+../../demos/block_on_ball.py

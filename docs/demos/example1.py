@@ -1,0 +1,1 @@
+../../demos/example1.py

@@ -1,0 +1,1 @@
+../../demos/gmsh_part.py

@@ -1,0 +1,1 @@
+../../demos/hertz.py

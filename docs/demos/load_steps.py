@@ -1,0 +1,1 @@
+../../demos/load_steps.py
