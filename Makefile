@@ -1,8 +1,8 @@
 # admm_dolfinx: two commands on a fresh machine.
 #   make demo   Example 1 of the paper, end to end (creates/refreshes .venv first)
-#   make test   lint and types (ruff, mypy), the test suite, serially and under mpiexec -n 2 (and -n 3, -n 4), every demo
-#               serially and under mpiexec -n 2, a quick `reproduce all`, and every
-#               benchmark at its smallest size
+#   make test   lint and types (ruff, mypy), the test suite serially and under mpiexec -n 2
+#               (and -n 3, -n 4), every demo under mpiexec -n 2, a quick `reproduce all`,
+#               every benchmark at its smallest size, and the book (every demo executed)
 # and, for reproduction:
 #   make reproduce OUT=dir   the paper's Tables 1-6 and figures (the Dockerfiles run this)
 SHELL := /bin/bash

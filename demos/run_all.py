@@ -1,6 +1,7 @@
-"""Run every demo at its smallest size, serially and under ``mpiexec -n 2``.
+"""Run every demo at its smallest size under ``mpiexec -n 2`` (``--serial``: also serially).
 
-Used by ``make test`` (and so by CI). Each demo writes into a temporary folder.
+Used by ``make test`` (and so by CI), where the book (``make docs``) executes every
+demo serially, at its book size. Each demo writes into a temporary folder.
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ DEMOS: list[tuple[str, list[str]]] = [
 
 def main() -> int:
     failures = []
+    counts = (1, 2) if "--serial" in sys.argv[1:] else (2,)
     for script, extra in DEMOS:
-        for nproc in (1, 2):
+        for nproc in counts:
             with tempfile.TemporaryDirectory() as tmp:
                 # -m mpi4py: an exception on one rank aborts all instead of hanging
                 cmd = [
@@ -55,7 +57,7 @@ def main() -> int:
     if failures:
         print("demo failures: " + ", ".join(failures))
         return 1
-    print(f"demos: {2 * len(DEMOS)} passed, 0 failed")
+    print(f"demos: {len(counts) * len(DEMOS)} passed, 0 failed")
     return 0
 
 
