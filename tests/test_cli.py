@@ -185,3 +185,41 @@ def test_verbose_anywhere_on_the_command_line(argv, verbose):
     from admm_dolfinx.cli import build_parser
 
     assert build_parser().parse_args(argv).verbose is verbose
+
+
+def test_missing_plotting_extra_is_one_line_and_the_rest_is_written(tmp_path_factory, monkeypatch):
+    import warnings
+
+    import admm_dolfinx
+    from admm_dolfinx.io import report
+    from admm_dolfinx.scenes.library import example1
+
+    monkeypatch.setattr(report, "available", lambda name: name != "pyvista")
+    tmp = _shared_tmp(tmp_path_factory, "noplot")
+    scene = example1(h=0.25)
+    problem = scene.problem()
+    result = admm_dolfinx.ADMMSolver(problem, petsc_options_prefix="noplot_").solve()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report.write_scene_outputs(tmp / "out", scene, problem, result)
+    MPI.COMM_WORLD.barrier()
+    names = sorted(p.name for p in (tmp / "out").iterdir())
+    assert names == ["solution.h5", "solution.xdmf", "summary.json"]
+    if MPI.COMM_WORLD.rank == 0:
+        lines = [str(w.message) for w in caught if "No figures" in str(w.message)]
+        assert len(lines) == 1 and "pip install pyvista" in lines[0]
+        assert "'.[plot]'" in lines[0]
+
+
+def test_a_missing_extra_names_both_ways_to_install_it():
+    from admm_dolfinx._extras import require
+
+    with pytest.raises(ImportError, match=r"pip install gmsh.*\.\[scenes\]") as info:
+        import admm_dolfinx._extras as extras
+
+        extras.EXTRAS["no_such_module_xyz"] = ("gmsh", "scenes")
+        try:
+            require("no_such_module_xyz", "The scenes build their meshes with gmsh")
+        finally:
+            del extras.EXTRAS["no_such_module_xyz"]
+    assert "The scenes build their meshes with gmsh" in str(info.value)

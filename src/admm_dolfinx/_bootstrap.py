@@ -18,5 +18,6 @@ except ImportError as err:  # pragma: no cover - depends on the environment
     raise ImportError(
         "admm_dolfinx needs DOLFINx 0.11 with petsc4py and slepc4py. Install it into a "
         "FEniCSx environment (conda, Docker, apt), or install the PyPI wheel with "
-        "`pip install 'admm-dolfinx[fenics]'`."
+        "`pip install dolfinx-solver-real` (or `pip install '.[fenics]'` in the admm_dolfinx "
+        "source folder)."
     ) from err

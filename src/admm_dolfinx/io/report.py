@@ -12,6 +12,8 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from admm_dolfinx._extras import available, install_hint
+from admm_dolfinx._logging import warn
 from admm_dolfinx.admm.solver import ADMMResult
 from admm_dolfinx.io.output import output_folder, write_json, write_xdmf
 from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -68,6 +70,19 @@ def write_scene_outputs(
     Returns:
         The summary that was written.
     """
+    comm = problem.comm
+    summary = result_summary(scene, problem, result) | dict(extra or {})
+    missing = [name for name in ("pyvista", "matplotlib") if not available(name)]
+    if missing:  # what can be written is: the solution and the summary
+        warn(
+            f"No figures: {' and '.join(missing)} not installed ({install_hint(missing[0])}); "
+            "writing solution.xdmf and summary.json only."
+        )
+        with output_folder(comm, folder) as tmp:
+            write_xdmf(tmp / "solution.xdmf", [result.u, result.pressure])
+            write_json(comm, tmp / "summary.json", summary)
+        return summary
+
     from admm_dolfinx.io.plotting import (
         obstacle_surface,
         plot_contact_pressure,
@@ -75,8 +90,6 @@ def write_scene_outputs(
         plot_iterations_vs_penalty,
     )
 
-    comm = problem.comm
-    summary = result_summary(scene, problem, result) | dict(extra or {})
     bounds = global_bounds(problem.mesh)  # collective: every rank calls it
     obstacle = obstacle_surface(scene.obstacle, bounds) if comm.rank == 0 else None
     with output_folder(comm, folder) as tmp:

@@ -80,13 +80,9 @@ def check_level(name: str, value: int) -> int:
 
 
 def _import_gmsh() -> ModuleType:
-    try:
-        import gmsh
-    except ImportError as err:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "The scenes build their meshes with gmsh: `pip install 'admm-dolfinx[scenes]'`."
-        ) from err
-    return gmsh
+    from admm_dolfinx._extras import require
+
+    return require("gmsh", "The scenes build their meshes with gmsh")
 
 
 @contextlib.contextmanager
