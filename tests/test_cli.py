@@ -223,3 +223,18 @@ def test_a_missing_extra_names_both_ways_to_install_it():
         finally:
             del extras.EXTRAS["no_such_module_xyz"]
     assert "The scenes build their meshes with gmsh" in str(info.value)
+
+
+def test_the_figure_moves_the_obstacle_with_the_magnified_body():
+    """The active nodes of Example 1 touch the plane 0.01 below: their mean displacement
+    is the gap, so the magnified picture draws the plane that much further down."""
+    import admm_dolfinx
+    from admm_dolfinx.io.report import _contact_displacement
+    from admm_dolfinx.scenes.library import example1
+
+    problem = example1(h=0.125).problem()
+    result = admm_dolfinx.ADMMSolver(problem, petsc_options_prefix="shift_").solve()
+    shift = _contact_displacement(problem, result)
+    gap = problem.contact.gap[result.multiplier > 0]
+    gaps = np.concatenate(MPI.COMM_WORLD.allgather(gap))
+    assert shift[1] == pytest.approx(-gaps.mean(), rel=1e-6)

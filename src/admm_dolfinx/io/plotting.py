@@ -107,6 +107,7 @@ def plot_deformed_von_mises(
     title: str = "",
     scale: float | None = None,
     obstacle_mesh=None,
+    obstacle_shift: np.ndarray | None = None,
 ) -> float:
     """Draw the deformed body coloured by von Mises stress (paper Figs. 6 and 9); collective.
 
@@ -119,6 +120,10 @@ def plot_deformed_von_mises(
             drawn as 5 % of the body's diameter (never shrunk below 1).
         obstacle_mesh: Optional pyvista mesh of the obstacle to draw beside the body
             (see :func:`obstacle_surface`).
+        obstacle_shift: The displacement of the body where it touches (e.g. the mean
+            displacement of the active contact nodes). The obstacle is drawn moved by
+            (magnification − 1) times it, so that the magnified body touches it where
+            the real one does, instead of seeming to sink into it.
 
     Returns:
         The magnification used.
@@ -149,7 +154,12 @@ def plot_deformed_von_mises(
             scalar_bar_args={"title": "von Mises stress"},
         )
         if obstacle_mesh is not None:
-            plotter.add_mesh(obstacle_mesh, color="saddlebrown", opacity=0.3, line_width=3)
+            drawn = obstacle_mesh
+            if obstacle_shift is not None:
+                shift = np.zeros(3)
+                shift[: len(obstacle_shift)] = (magnification - 1.0) * np.asarray(obstacle_shift)
+                drawn = obstacle_mesh.translate(shift, inplace=False)
+            plotter.add_mesh(drawn, color="saddlebrown", opacity=0.3, line_width=3)
         plotter.add_text(f"{title}  (displacement x{magnification:.3g})", font_size=11)
         if np.allclose(grid.points[:, 2], 0.0):
             # Plotter.view_xy and .show_axes forward to the active renderer; called there

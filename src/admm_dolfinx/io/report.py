@@ -12,6 +12,9 @@ from __future__ import annotations
 import os
 from typing import Any
 
+import numpy as np
+from mpi4py import MPI
+
 from admm_dolfinx._extras import available, install_hint
 from admm_dolfinx._logging import warn
 from admm_dolfinx.admm.solver import ADMMResult
@@ -44,6 +47,17 @@ def result_summary(scene: Scene, problem: ContactProblem, result: ADMMResult) ->
         "settings": result.settings.as_dict(),
         "plan": result.plan.describe() if result.plan is not None else None,
     }
+
+
+def _contact_displacement(problem: ContactProblem, result: ADMMResult) -> np.ndarray | None:
+    """The mean displacement of the active contact nodes (None if none); collective."""
+    c = problem.contact
+    bs = problem.V.dofmap.index_map_bs
+    values = result.u.x.array.reshape(-1, bs)[c.nodes, : problem.gdim]
+    active = result.multiplier > 0.0
+    local = np.concatenate([values[active].sum(axis=0), [float(np.count_nonzero(active))]])
+    total = problem.comm.allreduce(local, op=MPI.SUM)
+    return None if total[-1] == 0 else total[:-1] / total[-1]
 
 
 def write_scene_outputs(
@@ -100,6 +114,7 @@ def write_scene_outputs(
             tmp / "deformed_von_mises.png",
             title=f"{scene.name}: deformed configuration",
             obstacle_mesh=obstacle,
+            obstacle_shift=_contact_displacement(problem, result),
         )
         summary["figure_displacement_scale"] = scale
         plot_contact_pressure(
