@@ -56,7 +56,9 @@ def _script() -> Path:
 
 def _write_page() -> None:
     """The script's book page from the tables of this run (atexit; rank 0)."""
-    if not _tables or sys.exc_info()[0] is not None:
+    # a script that died of an uncaught exception (sys.last_exc / last_type set by the
+    # interpreter) or called sys.exit with an error writes no page
+    if not _tables or getattr(sys, "last_type", None) is not None:
         return
     script = _script()
     main = sys.modules.get("__main__")

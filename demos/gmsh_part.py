@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import ufl
 from dolfinx import fem
+from dolfinx import mesh as dmesh
 from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
@@ -111,8 +112,6 @@ say(
     f"read {msh.topology.index_map(0).size_global} nodes, "
     f"{msh.topology.index_map(3).size_global} cells; tags {sorted(set(facet_tags.values.tolist()))}"
 )
-
-from dolfinx import mesh as dmesh
 
 fdim = 2
 mid = dmesh.compute_midpoints(msh, fdim, facet_tags.indices)

@@ -42,3 +42,19 @@ def rel_diff(a, b) -> float:
     a, b = np.asarray(a), np.asarray(b)
     scale = max(np.linalg.norm(a), np.linalg.norm(b))
     return float(np.linalg.norm(a - b) / scale) if scale > 0 else 0.0
+
+
+def problem_from(scene, **changes):
+    """The scene's ContactProblem with any constructor argument replaced (by name)."""
+    from admm_dolfinx import ContactProblem
+
+    args = {
+        "a": scene.a,
+        "L": scene.L,
+        "bcs": scene.bcs,
+        "facet_tags": scene.facet_tags,
+        "contact_marker": scene.contact_marker,
+        "obstacle": scene.obstacle,
+    }
+    args.update(changes)
+    return ContactProblem(**args)

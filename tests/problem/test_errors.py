@@ -12,30 +12,19 @@ from admm_dolfinx import ADMMSolver, Ball, ContactProblem, Obstacle, Plane
 from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.scenes.library import example1
 
+from conftest import problem_from
+
 
 @pytest.fixture(scope="module")
 def scene():
     return example1(h=1 / 8, mesher="builtin")
 
 
-def _problem(scene, **changes):
-    args = {
-        "a": scene.a,
-        "L": scene.L,
-        "bcs": scene.bcs,
-        "facet_tags": scene.facet_tags,
-        "contact_marker": scene.contact_marker,
-        "obstacle": scene.obstacle,
-    }
-    args.update(changes)
-    return ContactProblem(**args)
-
-
 def test_scalar_space(scene):
     Q = fem.functionspace(scene.mesh, ("Lagrange", 1))
     p, q = ufl.TrialFunction(Q), ufl.TestFunction(Q)
     with pytest.raises(ValueError, match="vector space with 2 components"):
-        _problem(scene, a=ufl.inner(ufl.grad(p), ufl.grad(q)) * ufl.dx, L=q * ufl.dx)
+        problem_from(scene, a=ufl.inner(ufl.grad(p), ufl.grad(q)) * ufl.dx, L=q * ufl.dx)
 
 
 def test_p2_space(scene):
@@ -43,18 +32,18 @@ def test_p2_space(scene):
     u, v = ufl.TrialFunction(V2), ufl.TestFunction(V2)
     with pytest.raises(ValueError, match="P1 Lagrange"):
         load = ufl.dot(ufl.as_vector((0.0, -1.0)), v) * ufl.dx
-        _problem(scene, a=scene.material.bilinear_form(u, v), L=load, bcs=[])
+        problem_from(scene, a=scene.material.bilinear_form(u, v), L=load, bcs=[])
 
 
 def test_not_a_form(scene):
     with pytest.raises(TypeError, match="bilinear UFL form"):
-        _problem(scene, a=scene.L)
+        problem_from(scene, a=scene.L)
 
 
 def test_marker_without_facets(scene):
     message = r"No facets are tagged with contact marker 99.*\[1, 2, 3, 4\]"
     with pytest.raises(ValueError, match=message):
-        _problem(scene, contact_marker=99)
+        problem_from(scene, contact_marker=99)
 
 
 def test_marker_present_on_one_rank_only():
@@ -86,20 +75,20 @@ def test_marker_present_on_one_rank_only():
 
 @pytest.mark.parametrize("r", [0.0, -1.0, math.nan, math.inf])
 def test_bad_penalty(scene, r):
-    problem = _problem(scene)
+    problem = problem_from(scene)
     with pytest.raises(ValueError, match="penalty r must be a positive finite number"):
         ADMMSolver(problem, penalty=r)
 
 
 def test_penalty_of_wrong_type(scene):
     with pytest.raises(TypeError, match="penalty"):
-        ADMMSolver(_problem(scene), penalty="fast")
+        ADMMSolver(problem_from(scene), penalty="fast")
 
 
 @pytest.mark.parametrize("max_iter", [0, -5])
 def test_bad_max_iter(scene, max_iter):
     with pytest.raises(ValueError, match="max_iter must be at least 1"):
-        ADMMSolver(_problem(scene), penalty=1.0, max_iter=max_iter)
+        ADMMSolver(problem_from(scene), penalty=1.0, max_iter=max_iter)
 
 
 class _BadGap(Obstacle):
@@ -121,13 +110,15 @@ def test_bad_gap(scene, value, model):
     # a -inf gap along the body's normal: a node it cannot push out (explained as such)
     pattern = r"NaN or -inf at .* contact node|gap along the normal is -inf"
     with pytest.raises(ValueError, match=pattern):
-        _problem(scene, obstacle=_BadGap(value), contact_normal=model)
+        problem_from(scene, obstacle=_BadGap(value), contact_normal=model)
 
 
 def test_infinite_gap_means_never_touching(scene):
     """A disc under the middle of Γ_C: in the paper's model the rays from the ends miss
     it (g = +inf), and that works."""
-    problem = _problem(scene, obstacle=Ball(center=(1.0, -0.31), radius=0.3), contact_normal="body")
+    problem = problem_from(
+        scene, obstacle=Ball(center=(1.0, -0.31), radius=0.3), contact_normal="body"
+    )
     gaps = np.concatenate(problem.comm.allgather(problem.contact.gap))
     assert np.isinf(gaps).any() and np.isfinite(gaps).any()
     with ADMMSolver(problem, penalty=3000.0, rtol=1e-9) as solver:
@@ -141,7 +132,7 @@ def test_infinite_gap_means_never_touching(scene):
 def test_facet_tags_from_another_mesh(scene):
     other = example1(h=1 / 8, mesher="builtin")
     with pytest.raises(ValueError, match="different mesh"):
-        _problem(scene, facet_tags=other.facet_tags)
+        problem_from(scene, facet_tags=other.facet_tags)
 
 
 def test_dirichlet_on_every_contact_dof(scene):
@@ -149,7 +140,7 @@ def test_dirichlet_on_every_contact_dof(scene):
     dofs = fem.locate_dofs_topological(V, 1, scene.facet_tags.find(scene.contact_marker))
     bcs = [*scene.bcs, fem.dirichletbc(np.zeros(2), dofs, V)]
     with pytest.raises(ValueError, match="normal displacement fixed by the Dirichlet"):
-        _problem(scene, bcs=bcs)
+        problem_from(scene, bcs=bcs)
 
 
 def test_dirichlet_on_tangential_component_keeps_contact(scene):
@@ -157,13 +148,13 @@ def test_dirichlet_on_tangential_component_keeps_contact(scene):
     V = scene.V
     dofs = fem.locate_dofs_topological(V.sub(0), 1, scene.facet_tags.find(scene.contact_marker))
     bcs = [*scene.bcs, fem.dirichletbc(0.0, dofs, V.sub(0))]
-    problem = _problem(scene, bcs=bcs)
+    problem = problem_from(scene, bcs=bcs)
     assert problem.num_contact_nodes == 16
 
 
 def test_obstacle_dimension_mismatch(scene):
     with pytest.raises(ValueError, match="3D but the mesh is 2D"):
-        _problem(scene, obstacle=Plane((0, 0, 0), (0, 0, 1)))
+        problem_from(scene, obstacle=Plane((0, 0, 0), (0, 0, 1)))
 
 
 @pytest.mark.parametrize("nu", [0.5, 0.6, -1.0])
@@ -237,7 +228,7 @@ def test_bad_sweep_and_bcs_arguments(scene):
     with pytest.raises(ValueError, match="E must be a positive"):
         paper_penalty_grid(-1.0, 10)
     with pytest.raises(TypeError, match="pass \\[bc\\], not bc"):
-        _problem(scene, bcs=scene.bcs[0])
+        problem_from(scene, bcs=scene.bcs[0])
 
 
 def test_solve_after_destroy_is_a_clear_error():

@@ -17,9 +17,11 @@ from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx import ADMMConvergenceError, ADMMSolver, ContactProblem, Plane
+from admm_dolfinx import ADMMConvergenceError, ADMMSolver, Plane
 from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.scenes.library import example1, example3
+
+from conftest import problem_from
 
 pytestmark = pytest.mark.timeout(120)
 COMM = MPI.COMM_WORLD
@@ -28,19 +30,6 @@ COMM = MPI.COMM_WORLD
 @pytest.fixture(scope="module")
 def scene():
     return example1(COMM, h=1 / 8, mesher="builtin")
-
-
-def _problem(scene, **changes):
-    args = {
-        "a": scene.a,
-        "L": scene.L,
-        "bcs": scene.bcs,
-        "facet_tags": scene.facet_tags,
-        "contact_marker": scene.contact_marker,
-        "obstacle": scene.obstacle,
-    }
-    args.update(changes)
-    return ContactProblem(**args)
 
 
 def _elastic_form(scene, E):
@@ -53,34 +42,34 @@ def _elastic_form(scene, E):
 
 def test_negative_modulus_names_the_material(scene):
     with pytest.raises(ValueError, match=r"non-positive diagonal.*E > 0"):
-        _problem(scene, a=_elastic_form(scene, -2000.0))
+        problem_from(scene, a=_elastic_form(scene, -2000.0))
 
 
 def test_nan_modulus_names_the_stiffness(scene):
     with pytest.raises(ValueError, match="stiffness A assembled from `a` holds NaN"):
-        _problem(scene, a=_elastic_form(scene, np.nan))
+        problem_from(scene, a=_elastic_form(scene, np.nan))
 
 
 def test_non_symmetric_form_is_refused(scene):
     u, v = ufl.TrialFunction(scene.V), ufl.TestFunction(scene.V)
     skew = scene.a + 100.0 * u[0].dx(1) * v[1] * ufl.dx
     with pytest.raises(ValueError, match="not symmetric"):
-        _problem(scene, a=skew)
+        problem_from(scene, a=skew)
 
 
 def test_missing_load_advice_works(scene):
     with pytest.raises(TypeError, match=r"fem.Constant\(mesh, np.zeros\(gdim\)\)"):
-        _problem(scene, L=None)
+        problem_from(scene, L=None)
     # the advice itself is a valid zero load
     v = ufl.TestFunction(scene.V)
     zero = ufl.dot(fem.Constant(scene.mesh, np.zeros(2)), v) * ufl.dx
-    problem = _problem(scene, L=zero)
+    problem = problem_from(scene, L=zero)
     assert problem.load_norm == 0.0
 
 
 def test_numpy_scalars_are_accepted(scene):
     solver = ADMMSolver(
-        _problem(scene),
+        problem_from(scene),
         penalty_tol=np.float32(0.01),
         rtol=np.float64(1e-6),
         alpha=np.float32(1.5),
@@ -91,14 +80,14 @@ def test_numpy_scalars_are_accepted(scene):
 
 def test_misspelt_option_is_named(scene):
     with pytest.raises(ValueError, match=r"did not use the option\(s\) \['ksp_rtoll'\]"):
-        ADMMSolver(_problem(scene), penalty=3000.0, petsc_options={"ksp_rtoll": 1e-8})
+        ADMMSolver(problem_from(scene), penalty=3000.0, petsc_options={"ksp_rtoll": 1e-8})
 
 
 def test_incompatible_preconditioner_is_explained(scene):
     """GMRES + ILU: serially an inexact step 1 (named), in parallel no ILU (explained)."""
     options = {"ksp_type": "gmres", "pc_type": "ilu"}
     try:
-        ADMMSolver(_problem(scene), petsc_options=options).solve()
+        ADMMSolver(problem_from(scene), petsc_options=options).solve()
     except ADMMConvergenceError as error:
         assert error.result.status == "inexact_step1"
     except RuntimeError as error:
@@ -117,7 +106,7 @@ def test_mumps_memory_failure_is_named(option):
 
 
 def test_max_iter_advice_depends_on_the_penalty(scene):
-    problem = _problem(scene)
+    problem = problem_from(scene)
     with pytest.raises(ADMMConvergenceError) as given:
         ADMMSolver(problem, penalty=3000.0, max_iter=3, polish=False).solve()
     assert "penalty='auto'" in str(given.value)
@@ -130,7 +119,7 @@ def test_wrong_way_plane_warns(scene):
     flipped = Plane((0.0, -0.01), (0.0, -1.0))  # points into the body's side
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        _problem(scene, obstacle=flipped)
+        problem_from(scene, obstacle=flipped)
     if COMM.rank == 0:  # warnings are issued on rank 0 only
         texts = [str(w.message) for w in caught]
         assert any("normal points from the obstacle towards the body" in t for t in texts)
@@ -145,7 +134,7 @@ def _live_petsc() -> set[int]:
 def test_failed_construction_frees_what_it_built(scene, dim):
     """A construction that fails late (a misspelt step-1 option, found when r* and, in
     3D, the surface metric are built) destroys every PETSc object it created."""
-    problem = _problem(scene) if dim == 2 else example3(COMM, level=0).problem()
+    problem = problem_from(scene) if dim == 2 else example3(COMM, level=0).problem()
     before = _live_petsc()
     try:
         ADMMSolver(problem, petsc_options={"mat_mumps_icntl_99999": 1})

@@ -17,8 +17,10 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from admm_dolfinx import ADMMSolver, ContactProblem, Obstacle, Plane
+from admm_dolfinx import ADMMSolver, Obstacle, Plane
 from admm_dolfinx.scenes.library import example1
+
+from conftest import problem_from
 
 pytestmark = pytest.mark.timeout(60)
 COMM = MPI.COMM_WORLD
@@ -28,19 +30,6 @@ LAST = COMM.size - 1
 @pytest.fixture(scope="module")
 def scene():
     return example1(COMM, h=1 / 8, mesher="builtin")
-
-
-def _problem(scene, **changes):
-    args = {
-        "a": scene.a,
-        "L": scene.L,
-        "bcs": scene.bcs,
-        "facet_tags": scene.facet_tags,
-        "contact_marker": scene.contact_marker,
-        "obstacle": scene.obstacle,
-    }
-    args.update(changes)
-    return ContactProblem(**args)
 
 
 class FailsOnLastRank(Obstacle):
@@ -68,21 +57,21 @@ class WritesIntoItsInput(Obstacle):
 @pytest.mark.parametrize("model", ["obstacle", "body"])
 def test_gap_raising_on_one_rank_raises_on_every_rank(scene, model):
     with pytest.raises(ValueError, match="gap failed"):
-        _problem(scene, obstacle=FailsOnLastRank(), contact_normal=model)
+        problem_from(scene, obstacle=FailsOnLastRank(), contact_normal=model)
 
 
 @pytest.mark.parametrize("model", ["obstacle", "body"])
 def test_gap_cannot_modify_its_inputs(scene, model):
     with pytest.raises(ValueError, match="read-only"):
-        _problem(scene, obstacle=WritesIntoItsInput(), contact_normal=model)
+        problem_from(scene, obstacle=WritesIntoItsInput(), contact_normal=model)
     # and a good problem built afterwards has the right normals and nodes
-    problem = _problem(scene, contact_normal=model)
+    problem = problem_from(scene, contact_normal=model)
     assert np.allclose(problem.contact.normals, [0.0, -1.0])
     assert np.allclose(problem.contact.coordinates[:, 1], 0.0)
 
 
 def test_update_obstacle_raising_on_one_rank_keeps_the_old_obstacle(scene):
-    problem = _problem(scene)
+    problem = problem_from(scene)
     gap = problem.contact.gap.copy()
     with pytest.raises(ValueError, match="gap failed"):
         problem.update_obstacle(FailsOnLastRank())
@@ -95,7 +84,7 @@ def test_callback_raising_on_one_rank_raises_on_every_rank(scene):
             raise RuntimeError("this rank's callback failed")
         return False
 
-    with ADMMSolver(_problem(scene), polish=False) as solver:
+    with ADMMSolver(problem_from(scene), polish=False) as solver:
         with pytest.raises(RuntimeError, match="callback failed"):
             solver.solve(callback=callback)
         # the solver is still usable afterwards
@@ -103,7 +92,7 @@ def test_callback_raising_on_one_rank_raises_on_every_rank(scene):
 
 
 def test_callback_stopping_on_one_rank_stops_every_rank(scene):
-    with ADMMSolver(_problem(scene), polish=False) as solver:
+    with ADMMSolver(problem_from(scene), polish=False) as solver:
         result = solver.solve(callback=lambda k, u, lam: COMM.rank == LAST and k == 3)
     assert result.status == "callback" and result.iterations == 3
 
@@ -117,7 +106,7 @@ def test_dirichlet_condition_on_another_space_is_refused(scene):
         dofs = fem.locate_dofs_topological(space, 1, scene.facet_tags.find(1))
         bc = fem.dirichletbc(np.zeros(2), dofs, space)
         with pytest.raises(ValueError, match=r"bcs\[0\].*not the displacement space"):
-            _problem(scene, bcs=[bc])
+            problem_from(scene, bcs=[bc])
 
 
 def test_nan_inputs_are_refused_up_front(scene):
@@ -125,25 +114,25 @@ def test_nan_inputs_are_refused_up_front(scene):
     v = ufl.TestFunction(V)
     nan_load = ufl.dot(fem.Constant(scene.mesh, np.array([0.0, np.nan])), v) * ufl.dx
     with pytest.raises(ValueError, match=r"load vector.*NaN"):
-        _problem(scene, L=nan_load)
+        problem_from(scene, L=nan_load)
     inf_load = ufl.dot(fem.Constant(scene.mesh, np.array([np.inf, 0.0])), v) * ufl.dx
     with pytest.raises(ValueError, match=r"load vector.*NaN"):
-        _problem(scene, L=inf_load)
+        problem_from(scene, L=inf_load)
     dofs = fem.locate_dofs_topological(V, 1, scene.facet_tags.find(1))
     bad_bc = fem.dirichletbc(np.array([np.nan, 0.0]), dofs, V)
     with pytest.raises(ValueError, match=r"Dirichlet condition bcs\[0\].*NaN"):
-        _problem(scene, bcs=[bad_bc])
+        problem_from(scene, bcs=[bad_bc])
 
     class Absurd(Obstacle):
         def signed_distance(self, x):
             return np.full(x.shape[0], -1e300), np.tile([0.0, 1.0], (x.shape[0], 1))
 
     with pytest.raises(ValueError, match="deeper than the body's size"):
-        _problem(scene, obstacle=Absurd())
+        problem_from(scene, obstacle=Absurd())
 
 
 def test_nan_warm_start_is_refused(scene):
-    problem = _problem(scene)
+    problem = problem_from(scene)
     with ADMMSolver(problem) as solver:
         result = solver.solve()
         result.u.x.array[:] = np.nan
@@ -155,7 +144,7 @@ def test_nan_load_update_is_refused(scene):
     msh, V = scene.mesh, scene.V
     t = fem.Constant(msh, np.array([0.0, -10.0]))
     ds = ufl.Measure("ds", domain=msh, subdomain_data=scene.facet_tags)
-    problem = _problem(scene, L=ufl.dot(t, ufl.TestFunction(V)) * ds(2))
+    problem = problem_from(scene, L=ufl.dot(t, ufl.TestFunction(V)) * ds(2))
     with ADMMSolver(problem) as solver:
         t.value[1] = np.nan
         with pytest.raises(ValueError, match=r"load vector.*NaN"):
@@ -164,7 +153,7 @@ def test_nan_load_update_is_refused(scene):
 
 def test_garbage_collection_is_never_collective(scene):
     """A solver in a reference cycle, collected on one rank only, must not deadlock."""
-    problem = _problem(scene)
+    problem = problem_from(scene)
     solver = ADMMSolver(problem)
     solver.cycle = solver  # only the cycle collector can free it
     del solver

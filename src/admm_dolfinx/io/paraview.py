@@ -26,7 +26,7 @@ from petsc4py import PETSc
 
 from admm_dolfinx.admm.result import ADMMResult
 from admm_dolfinx.problem.contact_problem import ContactProblem
-from admm_dolfinx.problem.contact_zone import active_nodes, gap_function
+from admm_dolfinx.problem.contact_zone import active_marker, gap_function
 
 __all__ = ["ContactWriter"]
 
@@ -91,8 +91,7 @@ class ContactWriter:
         self.u.x.array[:] = result.u.x.array
         self.pressure.x.array[:] = result.pressure.x.array
         self.gap.x.array[:] = gap_function(problem, result.u).x.array
-        marker = active_nodes(result.multiplier).astype(np.float64)
-        self.active.x.array[:] = problem.pressure_function(marker).x.array
+        self.active.x.array[:] = active_marker(problem, result.multiplier).x.array
         if self.von_mises is not None and self._von_mises_form is not None:
             n_owned = self.von_mises.function_space.dofmap.index_map.size_local
             values = _assembled(self._von_mises_form)
