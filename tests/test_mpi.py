@@ -13,6 +13,7 @@ from mpi4py import MPI
 
 import admm_dolfinx  # noqa: F401  (loads MPI/PETSc in the right order)
 from admm_dolfinx._mpi import (
+    OnRank0,
     RankLayout,
     collective_call,
     from_rank0,
@@ -127,4 +128,27 @@ def test_rank0_work_and_its_failure_reach_every_rank():
 
     with pytest.raises(OSError, match="read-only folder"):
         run_on_rank0(COMM, broken, failure)
+    assert COMM.allreduce(1) == COMM.size
+
+
+def test_on_rank0_block():
+    """The inline form: the block's work runs on rank 0 only, its value reaches every
+    rank (or stays on rank 0), and its failure is raised on every rank, not a hang."""
+    ran = []
+    with OnRank0(COMM, lambda n, t, o: RuntimeError(t)) as work:
+        if work.here:
+            ran.append(COMM.rank)
+            work.value = {"answer": 42}
+    assert work.value == {"answer": 42}
+    assert COMM.allgather(ran) == [[0]] + [[]] * (COMM.size - 1)
+    with OnRank0(COMM, lambda n, t, o: RuntimeError(t), broadcast=False) as kept:
+        if kept.here:
+            kept.value = [1, 2]
+    assert kept.value == ([1, 2] if COMM.rank == 0 else None)
+    with pytest.raises(RuntimeError, match="ValueError: bad pivot") as caught:
+        with OnRank0(COMM, lambda n, t, o: RuntimeError(f"{n}: {t}")) as broken:
+            if broken.here:
+                raise ValueError("bad pivot")
+    if COMM.rank == 0:  # chained to the original there
+        assert isinstance(caught.value.__cause__, ValueError)
     assert COMM.allreduce(1) == COMM.size

@@ -26,6 +26,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 
 __all__ = [
+    "OnRank0",
     "RankLayout",
     "agree",
     "collective_call",
@@ -126,6 +127,58 @@ def from_rank0(comm: MPI.Comm, value: T) -> T:
     return comm.bcast(value, root=0)
 
 
+class OnRank0:
+    """A ``with`` block whose work runs on rank 0 alone, its failure raised on every rank.
+
+    Usage (collective; the work is written inline, no callback)::
+
+        with OnRank0(comm, failure) as work:
+            if work.here:
+                work.value = compute()
+        value = work.value  # on every rank (on rank 0 only if broadcast is False)
+
+    On leaving the block, rank 0 tells every rank whether its work raised; if it did,
+    every rank raises ``failure(type name, message, is OSError)`` (on rank 0 chained
+    to the original); otherwise the value is broadcast.
+
+    Args:
+        comm: Communicator.
+        failure: Builds the exception every rank raises.
+        broadcast: Broadcast the value; if False it stays on rank 0 (None elsewhere),
+            e.g. for an array that is scattered next.
+    """
+
+    def __init__(
+        self,
+        comm: MPI.Comm,
+        failure: Callable[[str, str, bool], Exception],
+        *,
+        broadcast: bool = True,
+    ):
+        self.comm = comm
+        self.failure = failure
+        self.broadcast = broadcast
+        self.here = comm.rank == 0
+        self.value: Any = None
+
+    def __enter__(self) -> OnRank0:
+        return self
+
+    def __exit__(self, kind, error, traceback) -> None:
+        if error is not None and not isinstance(error, Exception):
+            return  # KeyboardInterrupt, SystemExit: not caught (as elsewhere)
+        report = None
+        if self.here and error is not None:
+            report = (type(error).__name__, str(error), isinstance(error, OSError))
+        report = self.comm.bcast(report, root=0)
+        if report is not None:
+            raise self.failure(*report) from error
+        if error is not None:  # raised on another rank than 0: it propagates there
+            return
+        if self.broadcast:
+            self.value = self.comm.bcast(self.value, root=0)
+
+
 def run_on_rank0(
     comm: MPI.Comm,
     fn: Callable[[], Any],
@@ -134,6 +187,8 @@ def run_on_rank0(
     broadcast: bool = True,
 ) -> Any:
     """``fn()`` on rank 0, its value broadcast; its failure raised on every rank.
+
+    The callback form of :class:`OnRank0`.
 
     Args:
         comm: Communicator; collective.
@@ -147,19 +202,10 @@ def run_on_rank0(
     Returns:
         ``fn()``'s value, on every rank (on rank 0 only if ``broadcast`` is False).
     """
-    value, error = None, None
-    if comm.rank == 0:
-        try:
-            value = fn()
-        except Exception as exc:
-            error = exc
-    report = comm.bcast(
-        None if error is None else (type(error).__name__, str(error), isinstance(error, OSError)),
-        root=0,
-    )
-    if report is not None:
-        raise failure(*report) from error
-    return comm.bcast(value, root=0) if broadcast else value
+    with OnRank0(comm, failure, broadcast=broadcast) as work:
+        if work.here:
+            work.value = fn()
+    return work.value
 
 
 class RankLayout:

@@ -211,8 +211,8 @@ def test_bad_tolerance(tol):
 )
 def test_trial_pressures_drop_dependent_ones(scene, expected):
     """λ_max's start solves only for affine pressures independent on Γ_C (MPI-safe)."""
-    from admm_dolfinx.penalty.contact_operators import ContactSpace
-    from admm_dolfinx.penalty.iterative import affine_pressure_loads
+    from admm_dolfinx.linalg.contact_space import ContactSpace
+    from admm_dolfinx.penalty.lambda_max import affine_pressure_loads
 
     problem = scene().problem()
     space = ContactSpace(problem)
@@ -240,9 +240,13 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
     """When the start's CG really breaks down (an indefinite preconditioner, not just the
     planned steps taken), each response is one preconditioner application instead: the
     Ritz vectors are finite, B-orthonormal and lie in span{P f_i}."""
-    from admm_dolfinx.penalty.contact_operators import ContactSpace
-    from admm_dolfinx.penalty.iterative import affine_pressure_loads
-    from admm_dolfinx.penalty.lobpcg import BLOCK_SIZE, _ritz_start, gram_matrix
+    from admm_dolfinx.linalg.contact_space import ContactSpace
+    from admm_dolfinx.penalty.lambda_max import (
+        BLOCK_SIZE,
+        _ritz_start,
+        affine_pressure_loads,
+        gram_matrix,
+    )
 
     problem = example1(h=1 / 16).problem()
     space = ContactSpace(problem)

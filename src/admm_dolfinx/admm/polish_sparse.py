@@ -8,7 +8,7 @@ nodes. This module solves the same problem in the whole body instead,
     minimise ½uᵀAu − fᵀu   subject to   (N u)_j = g_j,  j ∈ 𝒜,
 
 by eliminating the constrained normal displacements with the nodal projector of the
-active nodes (:func:`~admm_dolfinx.penalty.contact_operators.projected_stiffness`):
+active nodes (:func:`~admm_dolfinx.linalg.contact_space.projected_stiffness`):
 u = u_g + w, with u_g the prescribed normal displacements and w the solution of
 Â w = P(f − A u_g), Â = P A P + c N_𝒜ᵀN_𝒜 (A with the active normal rows and columns
 replaced by c times the identity, in rotated coordinates). λ on 𝒜 then follows from
@@ -37,8 +37,8 @@ from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx.admm.polish_dense import SIGN_TOL
+from admm_dolfinx.linalg.contact_space import NodalMap, projected_stiffness
 from admm_dolfinx.linalg.petsc import check_solve, create_factor_solver
-from admm_dolfinx.penalty.contact_operators import NodalMap, projected_stiffness
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["MAX_SPARSE_ROUNDS", "SparsePolish"]

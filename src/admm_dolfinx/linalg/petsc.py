@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 from petsc4py import PETSc
@@ -25,8 +25,10 @@ __all__ = [
     "factor_options",
     "factorization_count",
     "is_factorisation",
+    "mean_diagonal",
     "prefixed_options",
-    "solve_top_eigenpair",
+    "prepare_eigensolve",
+    "top_eigenpair",
     "unique_prefix",
 ]
 
@@ -331,24 +333,38 @@ def check_solve(ksp: PETSc.KSP, what: str) -> None:
         )
 
 
-def solve_top_eigenpair(
+def prepare_eigensolve(
     eps: Any,
-    create_vec: Callable[[], PETSc.Vec],
-    failure: str,
     *,
     prefix: str,
     start: Sequence[PETSc.Vec] = (),
     deflation: Sequence[PETSc.Vec] = (),
-) -> tuple[float, PETSc.Vec, int]:
-    """Run a configured SLEPc EPS and return its first eigenpair; collective.
+) -> None:
+    """Give a configured SLEPc EPS its start and deflation spaces and the user's options.
+
+    The caller then runs ``eps.solve()`` itself (so that the Python callbacks of its
+    shell operators are entered from the module that defines them) and reads the
+    result with :func:`top_eigenpair`.
 
     Args:
         eps: The eigensolver, its operators, type and tolerances set.
-        create_vec: Makes the vector that receives the eigenvector (only on success).
-        failure: What to tell the user if nothing converged (the reason is appended).
         prefix: Options prefix; the user's ``-{prefix}eps_*`` options are applied last.
         start: Initial space (empty: SLEPc's random start).
         deflation: Vectors whose orthogonal complement is searched.
+    """
+    if deflation:
+        eps.setDeflationSpace(list(deflation))
+    if start:
+        eps.setInitialSpace(list(start))
+    apply_options(eps, prefix, {})
+
+
+def top_eigenpair(eps: Any, failure: str) -> tuple[float, PETSc.Vec, int]:
+    """The first eigenpair of a solved SLEPc EPS; collective.
+
+    Args:
+        eps: The eigensolver after ``eps.solve()``.
+        failure: What to tell the user if nothing converged (the reason is appended).
 
     Returns:
         The eigenvalue, the eigenvector (the caller destroys it), the iteration count.
@@ -356,13 +372,15 @@ def solve_top_eigenpair(
     Raises:
         RuntimeError: If no eigenpair converged.
     """
-    if deflation:
-        eps.setDeflationSpace(list(deflation))
-    if start:
-        eps.setInitialSpace(list(start))
-    apply_options(eps, prefix, {})
-    eps.solve()
     if eps.getConverged() < 1:
         raise RuntimeError(f"{failure} (SLEPc reason {eps.getConvergedReason()}).")
-    vec = create_vec()
+    vec = eps.getOperators()[0].createVecRight()
     return eps.getEigenpair(0, vec).real, vec, eps.getIterationNumber()
+
+
+def mean_diagonal(matrix: PETSc.Mat) -> float:
+    """Mean of the diagonal (a scale of the matrix); collective."""
+    diagonal = matrix.getDiagonal()
+    value = diagonal.sum() / diagonal.getSize()
+    diagonal.destroy()
+    return value

@@ -33,7 +33,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
-from admm_dolfinx._mpi import RankLayout, gather_csr, run_on_rank0
+from admm_dolfinx._mpi import OnRank0, RankLayout, gather_csr
 from admm_dolfinx.linalg.petsc import PetscOwner
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_set import contact_measure
@@ -123,35 +123,38 @@ class SurfaceMetric(PetscOwner):
         gathered = gather_csr(comm, csr)
         masses = self.layout.gather(c.mass)
 
-        def build() -> dict[str, Any]:
-            assert gathered is not None  # gather_csr stacks the rows on rank 0
-            indptr, indices, data = gathered
-            m = self.layout.total
-            laplacian = PETSc.Mat().createAIJ(
-                (m, m),
-                csr=(indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType), data),
-                comm=PETSc.COMM_SELF,
-            )
-            return {"laplacian": laplacian, "mass": masses}
-
         def failure(name: str, text: str, _: bool) -> Exception:
             return RuntimeError(f"Gathering L_Γ on rank 0 failed: {name}: {text}")
 
+        with OnRank0(comm, failure, broadcast=False) as work:
+            if work.here:
+                assert gathered is not None  # gather_csr stacks the rows on rank 0
+                indptr, indices, data = gathered
+                m = self.layout.total
+                laplacian = PETSc.Mat().createAIJ(
+                    (m, m),
+                    csr=(indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType), data),
+                    comm=PETSc.COMM_SELF,
+                )
+                work.value = {"laplacian": laplacian, "mass": masses}
         #: L_Γ and M on the contact nodes, on rank 0 (None elsewhere).
-        self._rank0 = run_on_rank0(comm, build, failure, broadcast=False)
+        self._rank0 = work.value
 
     @property
     def k_max_squared(self) -> float:
         """k²_max: the largest eigenvalue of L_Γ x = k² M x (SLEPc, rank 0); collective."""
         if self._k_max_squared is None:
-            self._k_max_squared = run_on_rank0(
-                self.problem.comm,
-                self._largest_surface_eigenvalue,
-                lambda name, text, _: RuntimeError(
+
+            def failure(name: str, text: str, _: bool) -> Exception:
+                return RuntimeError(
                     f"The largest eigenvalue of the contact surface's Laplacian failed: "
                     f"{name}: {text}"
-                ),
-            )
+                )
+
+            with OnRank0(self.problem.comm, failure) as work:
+                if work.here:
+                    work.value = self._largest_surface_eigenvalue()
+            self._k_max_squared = work.value
         return self._k_max_squared
 
     def _rank0_data(self) -> dict[str, Any]:

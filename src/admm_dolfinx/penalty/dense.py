@@ -28,7 +28,7 @@ import time
 import numpy as np
 from dolfinx.common import Timer
 
-from admm_dolfinx._mpi import RankLayout, run_on_rank0
+from admm_dolfinx._mpi import OnRank0, RankLayout
 from admm_dolfinx.linalg.condensed import CondensedOperator
 
 __all__ = ["RIGID_TOL", "compliance_matrix", "dense_extremes", "extremes_from_schur"]
@@ -180,22 +180,22 @@ def dense_extremes(problem, condensed, prefix, petsc_options):
         # the affine pressures 1, x, y (, z) on Γ_C, to estimate λ_max
         smooth = layout.gather(np.vstack([np.ones(c.dofs.size), c.coordinates.T]) * np.sqrt(c.mass))
 
-        def dense() -> tuple[float, float, int]:
-            with Timer("admm_dolfinx: r* dense pencil"):
-                return extremes_from_schur(
-                    condensed.schur,
-                    condensed.k_cc,
-                    condensed.support.weights,
-                    rigid=rigid.T,
-                    smooth=smooth.T,
-                )
-
         def failure(name: str, text: str, _: bool) -> Exception:
             if name == "RuntimeError":  # the explained failures of extremes_from_schur
                 return RuntimeError(text)
             return RuntimeError(f"The dense r* failed on rank 0: {name}: {text}")
 
-        lambda_min, lambda_max, rigid = run_on_rank0(problem.comm, dense, failure)
+        with OnRank0(problem.comm, failure) as work:
+            if work.here:
+                with Timer("admm_dolfinx: r* dense pencil"):
+                    work.value = extremes_from_schur(
+                        condensed.schur,
+                        condensed.k_cc,
+                        condensed.support.weights,
+                        rigid=rigid.T,
+                        smooth=smooth.T,
+                    )
+        lambda_min, lambda_max, rigid = work.value
         details = {
             "method": "dense",
             "m": problem.contact.num_global,

@@ -15,9 +15,10 @@ is the one entry point; the method is an explicit choice (``method``):
   (:func:`~admm_dolfinx.penalty.dense.extremes_from_schur`). Exact; the same on any
   number of processes to round-off; the ADMM then solves with the same factorisation.
 * ``"local"`` (the default elsewhere): no factorisation of the whole body. λ_min on
-  layers of cells along Γ_C, λ_max by multigrid LOBPCG on the full-space pencil
-  (:mod:`admm_dolfinx.penalty.iterative`); to the eigenvalue tolerance ``tol``, and,
-  through the multigrid's aggregates, dependent on the partition at that level.
+  layers of cells along Γ_C (:mod:`admm_dolfinx.penalty.lambda_min`), λ_max by
+  multigrid LOBPCG on the full-space pencil (:mod:`admm_dolfinx.penalty.lambda_max`);
+  to the eigenvalue tolerance ``tol``, and, through the multigrid's aggregates,
+  dependent on the partition at that level.
 * ``"factorised"``: both ends by Krylov–Schur on operators applied with factorisations
   of the body (Â for the exact Schur complement, A + r_a NᵀMN for λ_max), in the
   solver's own operator so that the symbolic analysis is shared with step 1; exact
@@ -37,12 +38,19 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from dolfinx.common import Timer
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
+from admm_dolfinx.linalg.contact_space import ContactSpace
 from admm_dolfinx.linalg.operators import PenalisedOperator
 from admm_dolfinx.penalty.dense import dense_extremes
-from admm_dolfinx.penalty.iterative import iterative_extremes
+from admm_dolfinx.penalty.lambda_max import (
+    NeedsFactorisation,
+    lambda_max_factorised,
+    lambda_max_multigrid,
+)
+from admm_dolfinx.penalty.lambda_min import lambda_min_exact, lambda_min_from_layers
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["DEFAULT_PENALTY_TOL", "PENALTY_METHODS", "PenaltyEstimate", "estimate_penalty"]
@@ -75,6 +83,7 @@ class PenaltyEstimate:
             iterative: solves and seconds per extreme (``solves_min``, ``time_min``,
             ``solves_max``, ``time_max``; ``time_multigrid_setup`` when λ_max came
             from multigrid), the auxiliary r_a.
+        condition_number: κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1).
     """
 
     r: float
@@ -83,6 +92,7 @@ class PenaltyEstimate:
     solves: int
     time: float
     details: dict[str, Any] = field(default_factory=dict)
+    condition_number: float = field(init=False)
 
     def as_dict(self) -> dict[str, Any]:
         """Plain numbers for reports and JSON."""
@@ -95,10 +105,9 @@ class PenaltyEstimate:
             "rigid_modes": self.details.get("rigid_modes", 0),
         }
 
-    @property
-    def condition_number(self) -> float:
-        """κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1)."""
-        return self.lambda_max / self.lambda_min
+    def __post_init__(self) -> None:
+        #: κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1).
+        self.condition_number = self.lambda_max / self.lambda_min
 
 
 def estimate_penalty(
@@ -158,10 +167,68 @@ def estimate_penalty(
     # private one
     if isinstance(operator, CondensedOperator):
         operator = None
-    lambda_min, lambda_max, details = iterative_extremes(
+    lambda_min, lambda_max, details = _iterative_extremes(
         problem, method, tol, max_it, operator, prefix, petsc_options
     )
     return _finish(lambda_min, lambda_max, details, t_start)
+
+
+def _iterative_extremes(
+    problem: ContactProblem,
+    method: str,
+    tol: float,
+    max_it: int,
+    operator: PenalisedOperator | None,
+    prefix: str,
+    petsc_options: dict | None,
+) -> tuple[float, float, dict[str, Any]]:
+    """λ_min, λ_max and details by the ``"local"`` or ``"factorised"`` method; collective.
+
+    The operator (shared with the ADMM, or a private one made here when a method
+    needs a factorisation of the whole body) is only touched by the factorised parts.
+    """
+    space = ContactSpace(problem)
+    own_operator = operator is None
+    details: dict[str, Any] = {"method": method, "tol": tol, "m": space.m}
+    start = space.start_vector()
+
+    def shared_operator() -> PenalisedOperator:
+        nonlocal operator
+        if operator is None:
+            operator = PenalisedOperator(problem, prefix, petsc_options)
+        return operator
+
+    try:
+        with Timer("admm_dolfinx: r* lambda_min"):
+            t0 = time.perf_counter()
+            if method == "local":
+                lambda_min, info = lambda_min_from_layers(
+                    space, tol, max_it, prefix, petsc_options, start
+                )
+            else:
+                lambda_min, info = lambda_min_exact(
+                    space, shared_operator(), tol, max_it, prefix, start
+                )
+            details.update(info, time_min=time.perf_counter() - t0)
+        with Timer("admm_dolfinx: r* lambda_max"):
+            t0 = time.perf_counter()
+            info = {}
+            if method == "local":
+                try:
+                    lambda_max, info = lambda_max_multigrid(space, lambda_min, tol, max_it, prefix)
+                except NeedsFactorisation as reason:
+                    logger.info("λ_max by factorisation instead of multigrid: %s", reason)
+            if not info:
+                lambda_max, info = lambda_max_factorised(
+                    space, shared_operator(), lambda_min, tol, max_it, prefix, start
+                )
+            details.update(info, time_max=time.perf_counter() - t0)
+    finally:
+        start.destroy()
+        space.destroy()
+        if own_operator and operator is not None:
+            operator.destroy()
+    return lambda_min, lambda_max, details
 
 
 def _finish(lambda_min, lambda_max, details, t_start) -> PenaltyEstimate:
@@ -175,13 +242,18 @@ def _finish(lambda_min, lambda_max, details, t_start) -> PenaltyEstimate:
         time=time.perf_counter() - t_start,
         details=details,
     )
+    how = (
+        "exactly, from the dense pencil"
+        if details.get("method") == "dense"
+        else f"from {estimate.solves} solves"
+    )
     logger.info(
-        "r* = %.6g (λ_min %.4e, λ_max %.4e, κ %.3g) from %d solves in %.3f s",
+        "r* = %.6g (λ_min %.4e, λ_max %.4e, κ %.3g) %s in %.3f s",
         r,
         lambda_min,
         lambda_max,
         estimate.condition_number,
-        estimate.solves,
+        how,
         estimate.time,
     )
     return estimate

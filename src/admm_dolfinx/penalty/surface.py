@@ -18,7 +18,7 @@ the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r is
   meshes of ``python benchmarks/surface_metric.py --part rule`` (Example 3 and three
   variants), and r within √2.
 * **μ_max** belongs to a short-wave mode at the edge of Γ_C, so it is computed like
-  λ_min in :mod:`admm_dolfinx.penalty.iterative`, on a layer of cells along Γ_C with
+  λ_min in :mod:`admm_dolfinx.penalty.lambda_min`, on a layer of cells along Γ_C with
   the rest of the body held fixed (stiffer than the body, so a lower bound, which
   grows to μ_max with the layer): two rings (:data:`LAYER_RINGS`). SLEPc solves the
   layer's generalised problem Nᵀ(M + βL_Γ)N x = μ A_L x with a factorisation of A_L.
@@ -40,11 +40,16 @@ from petsc4py import PETSc
 from slepc4py import SLEPc
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx._mpi import probe_vector
-from admm_dolfinx.linalg.petsc import apply_options, factor_options, solve_top_eigenpair
+from admm_dolfinx.linalg.petsc import (
+    apply_options,
+    factor_options,
+    mean_diagonal,
+    prepare_eigensolve,
+    top_eigenpair,
+)
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
-from admm_dolfinx.penalty.contact_operators import contact_layer, mean_diagonal
 from admm_dolfinx.penalty.estimate import PenaltyEstimate
+from admm_dolfinx.penalty.lambda_min import contact_layer
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["SurfacePenalty", "estimate_surface_penalty"]
@@ -187,10 +192,9 @@ def _largest_on_layer(problem, matrix, prefix, petsc_options):
         penalty.scale(1.0 / b_scale)
         start.set(0.0)  # N_Fᵀ of a partition-independent pseudo-random normal pattern
         position = np.searchsorted(nodes, c.nodes)
+        gdim = problem.mesh.geometry.dim
         with start as arr:
-            arr.reshape(-1, bs)[position, : problem.gdim] = (
-                c.free_normals * probe_vector(c.coordinates)[:, None]
-            )
+            arr.reshape(-1, bs)[position, :gdim] = c.free_normals * c.probe[:, None]
         value, vec, its = _layer_eigenvalue(penalty, stiffness, start, prefix, petsc_options)
         vec.destroy()
     finally:
@@ -219,13 +223,12 @@ def _layer_eigenvalue(penalty, stiffness, start, prefix, petsc_options):
             factor_options(petsc_options, 3),
             what="the layer solver of the surface metric's μ_max",
         )
-        return solve_top_eigenpair(
+        prepare_eigensolve(eps, prefix=prefix, start=[start])
+        eps.solve()
+        return top_eigenpair(
             eps,
-            stiffness.createVecRight,
             "SLEPc did not converge to the largest eigenvalue of the surface-metric pencil "
             "on a layer along the contact boundary. Pass penalty_metric='mass'",
-            prefix=prefix,
-            start=[start],
         )
     finally:
         eps.destroy()

@@ -46,7 +46,7 @@ from admm_dolfinx.problem.contact_set import (
     mesh_bounds,
 )
 from admm_dolfinx.problem.obstacles import Obstacle, obstacle_state
-from admm_dolfinx.problem.rigid_motions import RigidMotions, analyse_rigid_motions
+from admm_dolfinx.problem.rigid_motions import RigidMotions, analyse_rigid_motions, near_nullspace
 
 __all__ = ["ContactProblem"]
 
@@ -171,11 +171,12 @@ class ContactProblem(PetscOwner):
     """
 
     #: What :meth:`destroy` frees (matrices and vectors of the problem).
-    _petsc_objects = ("A", "K", "_load", "_lift_k")
+    _petsc_objects = ("A", "K", "near_nullspace", "_load", "_lift_k")
     # Assembled by the constructor (:meth:`_assemble_operators`), freed and set to None
     # by :meth:`destroy`, after which the problem is not to be used.
     A: PETSc.Mat
     K: PETSc.Mat
+    near_nullspace: PETSc.NullSpace
     _load: PETSc.Vec
     _lift_k: PETSc.Vec
 
@@ -284,6 +285,10 @@ class ContactProblem(PetscOwner):
         self.A.setDiagonal(diagonal, addv=PETSc.InsertMode.INSERT_VALUES)
         diagonal.destroy()
         self.A.assemble()
+        #: The rigid body motions, attached to A as its near null space for multigrid
+        #: (a matrix made from A by ``duplicate`` must be given it again).
+        self.near_nullspace = near_nullspace(V)
+        self.A.setNearNullSpace(self.near_nullspace)
         self.K = fem_petsc.assemble_matrix(self._k, bcs=bcs, diag=0.0)
         self.K.assemble()
 

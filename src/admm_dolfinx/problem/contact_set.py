@@ -26,7 +26,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import warn
-from admm_dolfinx._mpi import collective_call, from_rank0, gather_concat
+from admm_dolfinx._mpi import collective_call, from_rank0, gather_concat, probe_vector
 from admm_dolfinx.problem.obstacles import Obstacle, implements
 
 __all__ = [
@@ -127,6 +127,8 @@ class ContactSet:
         num_excluded: Nodes on Γ_C (all ranks) whose normal displacement is fixed by a
             Dirichlet condition and which are therefore not contact nodes.
         q_to_node: For every local dof of Q, its node (block) in the displacement space.
+        probe: Pseudo-random values in (−½, ½) per contact node that depend only on its
+            coordinates: the start of the eigenvalue solves, the same on every partition.
     """
 
     Q: fem.FunctionSpace
@@ -143,6 +145,7 @@ class ContactSet:
     num_global: int
     num_excluded: int
     q_to_node: npt.NDArray[np.int64]
+    probe: npt.NDArray[np.float64]
 
 
 def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -> int:
@@ -318,6 +321,7 @@ def build_contact_set(
         num_global=int(n_global),
         num_excluded=int(n_on_contact - n_global),
         q_to_node=q_to_node,
+        probe=probe_vector(coordinates[keep]),
     )
 
 

@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from dolfinx import fem
+from dolfinx import fem, la
 from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
-__all__ = ["RigidMotions", "analyse_rigid_motions"]
+__all__ = ["RigidMotions", "analyse_rigid_motions", "near_nullspace"]
 
 #: μ below this times the stiffness scale: the motion costs no energy (floats).
 FLOATING_TOL = 1e-10
@@ -52,26 +52,69 @@ class RigidMotions:
     normal_motion: npt.NDArray[np.float64]
 
 
+#: Rotations (i, j), the motions −x_j e_i + x_i e_j: about z in 2D; in 3D about x, y, z.
+_ROTATIONS = {2: [(0, 1)], 3: [(1, 2), (2, 0), (0, 1)]}
+#: The same in the order of DOLFINx's elasticity demos, for the multigrid (its
+#: aggregates, and so its V-cycles, depend on the basis, not only on its span).
+_NULLSPACE_ROTATIONS = {2: [(0, 1)], 3: [(0, 1), (0, 2), (1, 2)]}
+
+
+def _motion_values(x: npt.NDArray, bs: int, k: int, rotations) -> npt.NDArray:
+    """Nodal values (n, bs) of rigid motion k at the points x (n, gdim).
+
+    The motions are the translations e_0 … e_{gdim−1}, then the rotations (i, j) of
+    ``rotations``.
+    """
+    gdim = x.shape[1]
+    values = np.zeros((x.shape[0], bs))
+    if k < gdim:
+        values[:, k] = 1.0
+    else:
+        i, j = rotations[k - gdim]
+        values[:, i] = -x[:, j]
+        values[:, j] = x[:, i]
+    return values
+
+
 def _basis(V: fem.FunctionSpace, center: npt.NDArray, length: float) -> list[PETSc.Vec]:
     """Translations e_i and rotations about ``center`` scaled by 1/length (owned dofs)."""
     gdim = V.mesh.geometry.dim
     bs = V.dofmap.index_map_bs
     n = V.dofmap.index_map.size_local
     x = (V.tabulate_dof_coordinates()[:n, :gdim] - center[:gdim]) / length
-    rotations = [(0, 1)] if gdim == 2 else [(1, 2), (2, 0), (0, 1)]  # about z; x, y, z
     vectors = []
-    for k in range(gdim + len(rotations)):
+    for k in range(gdim + len(_ROTATIONS[gdim])):
         vec = fem_petsc.create_vector(V)
-        values = np.zeros((n, bs))
-        if k < gdim:
-            values[:, k] = 1.0
-        else:
-            i, j = rotations[k - gdim]
-            values[:, i] = -x[:, j]
-            values[:, j] = x[:, i]
-        vec.array[: n * bs] = values.reshape(-1)
+        vec.array[: n * bs] = _motion_values(x, bs, k, _ROTATIONS[gdim]).reshape(-1)
         vectors.append(vec)
     return vectors
+
+
+def near_nullspace(V: fem.FunctionSpace) -> PETSc.NullSpace:
+    """The rigid body motions of V, orthonormalised; collective.
+
+    They are the near null space of the elasticity operator that smoothed-aggregation
+    multigrid (``PCGAMG``) needs.
+
+    Args:
+        V: Vector-valued Lagrange space (2D: 3 modes, 3D: 6 modes).
+
+    Returns:
+        A PETSc null space object (the caller destroys it).
+    """
+    gdim = V.mesh.geometry.dim
+    index_map, bs = V.dofmap.index_map, V.dofmap.index_map_bs
+    n = index_map.size_local
+    x = V.tabulate_dof_coordinates()[:n, :gdim]
+    basis = [la.vector(index_map, bs=bs) for _ in range(gdim + len(_ROTATIONS[gdim]))]
+    for k, b in enumerate(basis):
+        b.array.reshape(-1, bs)[:n] = _motion_values(x, bs, k, _NULLSPACE_ROTATIONS[gdim])
+    la.orthonormalize(basis)
+    vectors = [b.petsc_vec.copy() for b in basis]
+    space = PETSc.NullSpace().create(vectors=vectors, comm=V.mesh.comm)
+    for vec in vectors:
+        vec.destroy()
+    return space
 
 
 def _gram(left: list[PETSc.Vec], right: list[PETSc.Vec]) -> np.ndarray:
