@@ -1,6 +1,7 @@
 """The command line and the output writers."""
 
 import json
+import logging
 
 import numpy as np
 import pytest
@@ -238,3 +239,58 @@ def test_the_figure_moves_the_obstacle_with_the_magnified_body():
     gap = problem.contact.gap[result.multiplier > 0]
     gaps = np.concatenate(MPI.COMM_WORLD.allgather(gap))
     assert shift[1] == pytest.approx(-gaps.mean(), rel=1e-6)
+
+
+@pytest.fixture
+def package_log(caplog):
+    """Records of the package's log; its level is reset afterwards (main() sets it)."""
+    yield caplog
+    logging.getLogger("admm_dolfinx").setLevel(logging.NOTSET)
+
+
+def _messages(caplog, level):
+    return [
+        r.getMessage()
+        for r in caplog.records
+        if r.levelno == level and r.name.startswith("admm_dolfinx")
+    ]
+
+
+@pytest.mark.parametrize("verbose", [False, True])
+def test_run_logs_stages_and_each_iteration_only_with_verbose(package_log, verbose):
+    """`run` shows its stages (plan, r*, step 1) by default; -v adds every iteration."""
+    with package_log.at_level(logging.DEBUG):
+        status = main(["run", "example1", "--h", "0.125", *(["-v"] if verbose else [])])
+    assert status == 0
+    if MPI.COMM_WORLD.rank != 0:  # the package logs on rank 0 only
+        assert not _messages(package_log, logging.INFO)
+        return
+    info = _messages(package_log, logging.INFO)
+    assert any(m.startswith("ADMM: ") and "contact nodes" in m for m in info)
+    assert any(m.startswith("r* = ") and "dense pencil" in m for m in info)  # not "0 solves"
+    iterations = [m for m in _messages(package_log, logging.DEBUG) if m.startswith("ADMM    1:")]
+    assert len(iterations) == (1 if verbose else 0)
+
+
+def test_reproduce_logs_nothing_but_its_own_progress(package_log, tmp_path_factory):
+    """`reproduce` prints its own progress; the solves under it do not log their stages."""
+    tmp = _shared_tmp(tmp_path_factory, "reproduce")
+    with package_log.at_level(logging.DEBUG):
+        main(["reproduce", "table2", "--quick", "--out", str(tmp)])
+    assert not _messages(package_log, logging.INFO)
+
+
+def test_a_long_solve_reports_progress(package_log, monkeypatch):
+    """A progress line at INFO every PROGRESS_SECONDS (here every iteration)."""
+    import admm_dolfinx.admm.solver as solver_module
+    from admm_dolfinx import ADMMSolver
+    from admm_dolfinx.scenes import example1
+
+    monkeypatch.setattr(solver_module, "PROGRESS_SECONDS", 0.0)
+    logging.getLogger("admm_dolfinx").setLevel(logging.INFO)
+    with package_log.at_level(logging.INFO), ADMMSolver(example1(h=0.125).problem()) as s:
+        result = s.solve()
+    lines = [
+        m for m in _messages(package_log, logging.INFO) if m.startswith("ADMM ") and "fpr" in m
+    ]
+    assert len(lines) == (result.iterations if MPI.COMM_WORLD.rank == 0 else 0)

@@ -117,6 +117,9 @@ def _version() -> str:
     return __version__
 
 
+_VERBOSE_HELP = "log every ADMM iteration (rank 0); without it `run` logs stages and progress"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also documents every command in ``--help``)."""
     parser = argparse.ArgumentParser(
@@ -132,10 +135,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--verbose",
         action="store_true",
         default=argparse.SUPPRESS,
-        help="log every ADMM iteration (rank 0)",
+        help=_VERBOSE_HELP,
     )
     parser.add_argument(
-        "-v", "--verbose", action="store_true", help="log every ADMM iteration (rank 0)"
+        "-v",
+        "--verbose",
+        action="store_true",
+        help=_VERBOSE_HELP,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -226,9 +232,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``admm-dolfinx``."""
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s"
-    )
+    # The package's own log (rank 0, stderr): every ADMM iteration with -v; otherwise a
+    # `run` shows its stages and a progress line every few seconds of a long solve, and
+    # `reproduce` (which prints its own progress) only warnings.
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    quiet = logging.WARNING if args.command == "reproduce" else logging.INFO
+    logging.getLogger("admm_dolfinx").setLevel(logging.DEBUG if args.verbose else quiet)
     try:
         return args.func(args)
     except (OSError, ValueError) as error:  # an output path or bad input: every rank

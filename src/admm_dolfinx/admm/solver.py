@@ -65,6 +65,7 @@ the callback, which says so (``status="callback"``, ``converged=False``).
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from typing import Any
@@ -104,6 +105,9 @@ _REJECTED, _PLAIN, _ANDERSON, _POLISHED = -1, 0, 1, 2
 _NOTES = {_PLAIN: "", _ANDERSON: " (Anderson)", _POLISHED: " (polished)"}
 #: A solve that needs this many iterations or more says so in ``result.warning``.
 SLOW_ITERATIONS = 300
+#: Seconds between the progress lines of a long solve (logged at INFO; every
+#: iteration is logged at DEBUG).
+PROGRESS_SECONDS = 10.0
 #: The settings :meth:`ADMMSolver.update_settings` may change between solves: they
 #: change neither r, nor the factorisation, nor the plan.
 ITERATION_SETTINGS = ("rtol", "kkt_tol", "max_iter", "alpha", "anderson", "stopping")
@@ -165,6 +169,12 @@ class ADMMSolver:
         #: What the solver chose and why.
         self.plan: SolverPlan = make_plan(problem, s)
         plan, prefixes = self.plan, s.prefixes
+        logger.info(
+            "ADMM: %d dofs, %d contact nodes; %s",
+            problem.V.dofmap.index_map.size_global * problem.V.dofmap.index_map_bs,
+            problem.contact.num_global,
+            plan.describe(),
+        )
         #: The r* estimate when ``penalty="auto"`` (None otherwise).
         self.penalty_estimate: PenaltyEstimate | None = None
         #: β and r of the surface metric (None with the paper's metric r M).
@@ -410,7 +420,8 @@ class ADMMSolver:
         status, kkt, iterations, polished_at = "max_iter", None, 0, None
         accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
         proposal = _PLAIN  # what z is: a plain step, or an Anderson or polished proposal
-        logger.info("ADMM: m = %d contact nodes, r = %.6g, %s", c.num_global, r, self.plan)
+        logger.debug("ADMM: m = %d contact nodes, r = %.6g", c.num_global, r)
+        self._next_progress = time.perf_counter() + PROGRESS_SECONDS
         try:
             with Timer("admm_dolfinx: iterations"):
                 t0 = time.perf_counter()
@@ -481,7 +492,7 @@ class ADMMSolver:
             logger.warning("%s", result.warning)
         if status not in ("converged", "callback"):
             raise ADMMConvergenceError(self._failure_message(result), result)
-        logger.info("%s", result.summary())
+        logger.debug("%s", result.summary())
         return result
 
     # ------------------------------------------------------------ the loop's parts
@@ -516,7 +527,13 @@ class ADMMSolver:
         for key in _HISTORY:
             history[key].append(residuals[key])
         history["accelerated"].append(what)
-        logger.info(
+        # every iteration at DEBUG; at INFO (progress) one line every PROGRESS_SECONDS
+        now = time.perf_counter()
+        level = logging.INFO if now >= self._next_progress else logging.DEBUG
+        if level == logging.INFO:
+            self._next_progress = now + PROGRESS_SECONDS
+        logger.log(
+            level,
             "ADMM %4d: fpr %.2e feas %.2e comp %.2e eq %.2e du %.2e dp %.2e active %d%s",
             k,
             *(residuals[key] for key in ("fpr", "feasibility", "complementarity")),

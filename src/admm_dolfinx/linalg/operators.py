@@ -15,10 +15,13 @@ from typing import Any
 from dolfinx.common import Timer
 from petsc4py import PETSc
 
+from admm_dolfinx._logging import get_logger
 from admm_dolfinx.linalg.petsc import PetscOwner, check_solve, create_factor_solver
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["FactorisedOperator", "PenalisedOperator"]
+
+logger = get_logger(__name__)
 
 
 class FactorisedOperator(PetscOwner):
@@ -64,6 +67,7 @@ class PenalisedOperator(FactorisedOperator):
         petsc_options: Mapping[str, Any] | None = None,
     ):
         self.problem = problem
+        self.gdim = problem.mesh.geometry.dim
         self.prefix = prefix
         self._options = dict(petsc_options or {})
         self.matrix: PETSc.Mat | None = None
@@ -123,6 +127,7 @@ class PenalisedOperator(FactorisedOperator):
             self.timings["factorization"] = time.perf_counter() - t0
         self.penalty = float(r)
         self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
+        logger.info("step 1: set up %s in %.3g s", self._label, self.timings["factorization"])
 
     def _ensure_ksp(self, matrix: PETSc.Mat) -> PETSc.KSP:
         """Create the KSP (factorising), or tell it that the matrix values changed.
@@ -134,7 +139,7 @@ class PenalisedOperator(FactorisedOperator):
             The KSP.
         """
         if self.ksp is None:
-            self.ksp = create_factor_solver(matrix, self.prefix, self._options, self.problem.gdim)
+            self.ksp = create_factor_solver(matrix, self.prefix, self._options, self.gdim)
         else:
             self.ksp.setOperators(matrix)
         return self.ksp
