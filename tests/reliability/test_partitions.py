@@ -19,7 +19,7 @@ from admm_dolfinx import ADMMSolver, Ball, Plane, estimate_penalty
 from admm_dolfinx.problem.kkt import compute_kkt_residuals
 from admm_dolfinx.studies.baselines import solve_snes_vi
 
-from partitions import CELLS, PARTITIONS, gathered, owners, pressed_box
+from partitions import CELLS, PARTITIONS, TOP, gathered, owners, pressed_box
 
 pytestmark = pytest.mark.timeout(180)
 COMM = MPI.COMM_WORLD
@@ -173,4 +173,44 @@ def test_outputs_on_partitions(gdim, cell, how, tmp_path_factory):
 
     names = sorted(p.name for p in Path(folder).iterdir())
     assert names == ["pressure.png", "solution.h5", "solution.xdmf"]
+    problem.destroy()
+
+
+@pytest.mark.parametrize("gdim,cell,how", AWKWARD)
+def test_engineering_outputs_match_serial(gdim, cell, how, tmp_path_factory):
+    """Force, reaction, area, pressures, gap, active set and the ParaView writer on every
+    partition (a rank without contact nodes or cells) against the same problem serially."""
+    from admm_dolfinx.io.paraview import ContactWriter
+
+    problem = pressed_box(COMM, gdim, cell, how, obstacle=_ball(gdim))
+    _check_partition(problem, how)
+    with ADMMSolver(problem, **TIGHT) as solver:
+        result = solver.solve()
+    serial_problem = pressed_box(MPI.COMM_SELF, gdim, cell, how, obstacle=_ball(gdim))
+    with ADMMSolver(serial_problem, **TIGHT) as solver:
+        serial = solver.solve()
+    assert result.converged and serial.converged
+    scale = np.linalg.norm(serial.contact_force)
+    assert np.linalg.norm(result.contact_force - serial.contact_force) <= 1e-9 * scale
+    reaction = result.reaction_force(TOP)
+    assert np.linalg.norm(reaction - serial.reaction_force(TOP)) <= 1e-9 * scale
+    assert np.linalg.norm(reaction + result.contact_force) <= 1e-8 * scale  # equilibrium
+    for name in ("contact_area", "mean_pressure", "max_pressure"):
+        assert getattr(result, name) == pytest.approx(getattr(serial, name), rel=1e-9), name
+    assert result.contact_area > 0.0
+    gap, serial_gap = gathered(problem, result.gap()), gathered(serial_problem, serial.gap())
+    assert np.abs(gap - serial_gap).max() <= 1e-9 * np.abs(serial_gap).max()
+    active = gathered(problem, result.active_marker())
+    np.testing.assert_array_equal(active, gathered(serial_problem, serial.active_marker()))
+    facets = result.active_facets()
+    count = COMM.allreduce(int(np.count_nonzero(facets.values == 1)), op=MPI.SUM)
+    assert count == int(np.count_nonzero(serial.active_facets().values == 1)) > 0
+    folder = COMM.bcast(str(tmp_path_factory.mktemp("vtx")) if COMM.rank == 0 else None)
+    with ContactWriter(problem, f"{folder}/contact.bp") as writer:
+        writer.write(result, 0.0)
+    COMM.Barrier()
+    from pathlib import Path
+
+    assert (Path(folder) / "contact.bp").is_dir()
+    serial_problem.destroy()
     problem.destroy()
