@@ -55,7 +55,7 @@ def _half_disc(order: int):
 
 def test_p1_displacement_on_curved_geometry():
     straight, curved = _half_disc(1), _half_disc(2)
-    assert curved.mesh.geometry.cmap.degree == 2
+    assert curved.mesh.geometry.cmaps[0].degree == 2
     results = []
     for problem in (straight, curved):
         result = admm_dolfinx.ADMMSolver(problem, rtol=1e-10).solve()
@@ -71,3 +71,27 @@ def test_p1_displacement_on_curved_geometry():
     f_straight, f_curved = results[0].contact_force[1], results[1].contact_force[1]
     assert f_curved == pytest.approx(f_straight, rel=2e-2)
     assert results[1].contact_area == pytest.approx(results[0].contact_area, rel=0.1)
+
+
+def test_outputs_on_curved_geometry(tmp_path_factory):
+    """XDMF (which stores functions in the geometry's degree) and VTX both write a P1
+    solution on second-order geometry; the P2 copy XDMF writes is exact."""
+    from admm_dolfinx.io.output import _in_geometry_degree, write_xdmf
+    from admm_dolfinx.io.paraview import ContactWriter
+
+    problem = _half_disc(2)
+    result = admm_dolfinx.ADMMSolver(problem).solve()
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(str(tmp_path_factory.mktemp("curved")) if comm.rank == 0 else None)
+    write_xdmf(f"{folder}/solution.xdmf", [result.u, result.pressure])
+    with ContactWriter(problem, f"{folder}/contact.bp") as writer:
+        writer.write(result, 0.0)
+    comm.Barrier()
+    text = open(f"{folder}/solution.xdmf").read()
+    assert 'Name="displacement"' in text and f'Name="{result.pressure.name}"' in text
+    quadratic = _in_geometry_degree(result.u, 2)
+    assert quadratic.function_space.element.basix_element.degree == 2
+    back = fem.Function(result.u.function_space)
+    back.interpolate(quadratic)
+    error = comm.allreduce(float(np.abs(back.x.array - result.u.x.array).max()), MPI.MAX)
+    assert error <= 1e-14 * comm.allreduce(float(np.abs(result.u.x.array).max()), MPI.MAX)

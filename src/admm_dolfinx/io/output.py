@@ -272,14 +272,30 @@ def atomic_file(path: str | os.PathLike, newline: str | None = None) -> Iterator
 
 
 def write_xdmf(path: str | os.PathLike, functions: list[fem.Function]) -> None:
-    """Write P1 functions on one mesh to an XDMF file (ParaView); collective.
+    """Write Lagrange functions on one mesh to an XDMF file (ParaView); collective.
+
+    XDMF stores a function in the degree of the mesh geometry: on curved (second-order)
+    geometry a P1 function is written interpolated into P2, which represents it exactly.
 
     Args:
         path: ``.xdmf`` file (the ``.h5`` is written beside it).
         functions: Functions on the same mesh.
     """
     msh = functions[0].function_space.mesh
+    degree = msh.geometry.cmaps[0].degree
     with io.XDMFFile(msh.comm, str(path), "w") as xdmf:
         xdmf.write_mesh(msh)
         for f in functions:
-            xdmf.write_function(f)
+            xdmf.write_function(_in_geometry_degree(f, degree))
+
+
+def _in_geometry_degree(f: fem.Function, degree: int) -> fem.Function:
+    """``f`` itself, or ``f`` interpolated into Lagrange of the geometry's degree."""
+    element = f.function_space.element.basix_element
+    if element.degree == degree:
+        return f
+    shape = f.function_space.value_shape
+    space = fem.functionspace(f.function_space.mesh, ("Lagrange", degree, shape))
+    out = fem.Function(space, name=f.name)
+    out.interpolate(f)
+    return out
