@@ -88,8 +88,9 @@ AWKWARD = [
         {"penalty_metric": "mass", **TIGHT},
         {"polish": True, **TIGHT},
         {"polish": False, "penalty_method": "factorised", "penalty_tol": 1e-8, **TIGHT},
+        {"step1": "iterative", **TIGHT},
     ],
-    ids=["paper", "fixed-r", "mass-metric", "polish", "tight-r*"],
+    ids=["paper", "fixed-r", "mass-metric", "polish", "tight-r*", "iterative"],
 )
 def test_solver_paths_match_serial(gdim, cell, how, options):
     if gdim == 2 and options.get("penalty_metric") == "mass":
@@ -99,7 +100,15 @@ def test_solver_paths_match_serial(gdim, cell, how, options):
     with ADMMSolver(problem, **options) as solver:
         result = solver.solve()
     u_serial, serial = _serial(gdim, cell, how, **options)
+    # the inexact path (multigrid step 1) meets the same KKT tolerance with different
+    # inner errors on each partition: the answers agree to that level
     tol = 1e-7 if options.get("mode") == "paper" else 1e-10
+    if options.get("step1") == "iterative":
+        tol = 1e-8
+        assert result.step1 is not None and result.step1.krylov_iterations > 0
+    assert result.converged  # and independently:
+    kkt = compute_kkt_residuals(problem, result.u.x.petsc_vec, result.multiplier)
+    assert kkt.max() <= result.settings.kkt_tol
     assert _rel(gathered(problem, result.u), u_serial) <= tol
     if options.get("mode") == "paper" or "penalty" in options:
         assert result.iterations == serial.iterations

@@ -53,8 +53,11 @@ def test_inexact_step1_is_not_converged(scene, problem, options):
         rtol=1e-6,
     )
     if isinstance(outcome, ADMMConvergenceError):
-        assert outcome.result.status == "inexact_step1"
-        assert "not exact" in str(outcome) and "ksp_rtol" in str(outcome)
+        # the loop's identity-based test met with the recomputed KKT residuals off, or
+        # (warm-started at a fixed inner tolerance) the outer residual stalled: either
+        # way not converged, and the message names the inexact rule as the fix
+        assert outcome.result.status in ("inexact_step1", "max_iter")
+        assert "step1_rtol='auto'" in str(outcome)
 
 
 def test_tight_iterative_step1_converges_verified(scene, problem):

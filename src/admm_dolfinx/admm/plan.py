@@ -6,7 +6,12 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
 
 * step 1: a factorisation of A condensed onto Γ_C (2D, one process, where the dense
   work is cheap: :func:`~admm_dolfinx.linalg.condensed.condensed_factor_applies`), a
-  factorisation of A + rK, or the user's iterative solver;
+  factorisation of A + rK, or conjugate gradients with multigrid (an inexact ADMM).
+  In 3D, with ``step1="auto"`` and no solver options, MUMPS's analysis
+  (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) decides: multigrid if
+  the factorisation would need more than :data:`MEMORY_FRACTION` of the available
+  memory or more than :data:`FACTOR_FLOPS_LIMIT` operations (where the multigrid path
+  is faster: ``python benchmarks/scale_3d.py`` measures both sides of it);
 * r*: dense (from the condensed factorisation), local (no factorisation of the body)
   or factorised, unless the penalty is given;
 * polishing: dense (the compliance of Γ_C, where S_C is at hand), sparse (2D,
@@ -18,12 +23,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mpi4py import MPI
+
 from admm_dolfinx.admm.settings import ADMMSettings
 from admm_dolfinx.linalg.condensed import condensed_factor_applies
-from admm_dolfinx.linalg.petsc import is_factorisation
+from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
+from admm_dolfinx.linalg.petsc import ITERATIVE_OPTIONS, is_factorisation
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["SolverPlan", "make_plan"]
+__all__ = ["FACTOR_FLOPS_LIMIT", "MEMORY_FRACTION", "SolverPlan", "make_plan"]
+
+#: In 3D, a factorisation estimated to need more than this fraction of the memory
+#: available is not attempted: step 1 uses multigrid.
+MEMORY_FRACTION = 0.5
+#: In 3D, a factorisation estimated (by MUMPS) to cost more operations than this is
+#: slower than the multigrid path on the whole solve (the crossover of
+#: ``python benchmarks/scale_3d.py``).
+FACTOR_FLOPS_LIMIT = 1e11
 
 
 @dataclass(frozen=True)
@@ -39,6 +55,9 @@ class SolverPlan:
             (freed once S_C is read): step 1 factorises A + rK.
         factor_options: The options the inner factorisations take (the step-1 options
             if they describe a MUMPS factorisation, else None: the defaults).
+        step1_options: The options of the step-1 solver.
+        inner_rtol: The tolerance of an iterative step 1: ``"adaptive"`` (the inexact
+            rule), a number (fixed), or None (a direct solve).
         reasons: Why, in words.
     """
 
@@ -48,6 +67,8 @@ class SolverPlan:
     metric: str
     private_schur: bool
     factor_options: dict | None
+    step1_options: dict
+    inner_rtol: str | float | None
     reasons: tuple[str, ...]
 
     def describe(self) -> str:
@@ -67,11 +88,14 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     """
     options = dict(settings.petsc_options)
     auto = settings.penalty == "auto"
-    factor = is_factorisation(options)
     serial = problem.comm.size == 1
     gdim = problem.gdim
     reasons = [f"{gdim}D", "one process" if serial else f"{problem.comm.size} processes"]
-    reasons.append("MUMPS factorisation" if factor else f"iterative step 1 {options}")
+    iterative, why = _iterative_step1(problem, settings, options)
+    reasons.append(why)
+    if iterative:
+        options = {**ITERATIVE_OPTIONS, **options}
+    factor = is_factorisation(options)
     explicit = settings.condensed is True or settings.polish is True
     schur_possible = condensed_factor_applies(problem, options, any_dimension=explicit)
     if settings.condensed is True and not (serial and schur_possible):
@@ -139,5 +163,42 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         metric=metric,
         private_schur=bool(schur and not condensed),
         factor_options=options if factor else None,
+        step1_options=options,
+        inner_rtol=_inner_rtol(settings, options) if step1 == "iterative" else None,
         reasons=tuple(reasons),
     )
+
+
+def _inner_rtol(settings: ADMMSettings, options: dict) -> str | float:
+    if "ksp_rtol" in options:
+        return float(options["ksp_rtol"])
+    return "adaptive" if settings.step1_rtol == "auto" else float(settings.step1_rtol)
+
+
+def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: dict):
+    """(whether step 1 is iterative, why in words); collective (MUMPS's analysis)."""
+    if settings.step1 == "iterative":
+        return True, "step1='iterative': CG + multigrid"
+    if options.get("ksp_type", "preonly") != "preonly":
+        return True, f"an iterative step 1 from petsc_options {options}"
+    if settings.step1 == "factorised" or options:
+        return False, "MUMPS factorisation"
+    if problem.gdim != 3 or settings.condensed is True or settings.polish is True:
+        return False, "MUMPS factorisation"
+    estimate = mumps_estimate(problem.A)
+    if estimate is None:
+        return False, "MUMPS factorisation (no analysis available to compare)"
+    # the smallest figure over the ranks: on one machine every rank sees the same total
+    memory = problem.comm.allreduce(available_memory() or float("inf"), op=MPI.MIN)
+    need = f"{estimate.memory / 1e9:.3g} GB and {estimate.flops:.3g} flops"
+    if estimate.memory > MEMORY_FRACTION * memory:
+        return True, (
+            f"a factorisation would need {need}, more than {MEMORY_FRACTION:g} of the "
+            f"{memory / 1e9:.3g} GB available: CG + multigrid"
+        )
+    if estimate.flops > FACTOR_FLOPS_LIMIT:
+        return True, (
+            f"a factorisation would need {need} (> {FACTOR_FLOPS_LIMIT:.0e} flops, where "
+            "multigrid is faster): CG + multigrid"
+        )
+    return False, f"MUMPS factorisation ({need})"

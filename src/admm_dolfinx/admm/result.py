@@ -18,7 +18,7 @@ from admm_dolfinx.problem.kkt import KKTResiduals
 if TYPE_CHECKING:
     from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["STATUSES", "ADMMConvergenceError", "ADMMResult", "PolishInfo", "Timings"]
+__all__ = ["STATUSES", "ADMMConvergenceError", "ADMMResult", "PolishInfo", "Step1Info", "Timings"]
 
 #: ``ADMMResult.status`` values and what they mean.
 STATUSES = {
@@ -71,6 +71,27 @@ class Timings:
     def as_dict(self) -> dict[str, float]:
         """Plain numbers for reports and JSON."""
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class Step1Info:
+    """What an iterative step 1 did in one solve (the inexact ADMM).
+
+    Attributes:
+        krylov_iterations: Krylov (CG) iterations over every step-1 solve.
+        solves: Step-1 solves.
+        unconverged: Solves that stopped at their iteration limit.
+        last_rtol: The relative tolerance of the last solve.
+        tightened: How often the KKT check made the tolerances tighter.
+        time: Seconds in the step-1 solves (part of ``timings.iterations``).
+    """
+
+    krylov_iterations: int
+    solves: int
+    unconverged: int
+    last_rtol: float
+    tightened: int
+    time: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -149,6 +170,7 @@ class ADMMResult:
         polish: What polishing did (None when off).
         projection: The surface metric's QP statistics (active-set ``rounds``,
             ``factorisations``), if it was used.
+        step1: An iterative step 1's work in this solve (None for a direct one).
         warning: Non-empty when the solve was slow, with the observed contraction
             rate and the likely cause.
     """
@@ -176,6 +198,7 @@ class ADMMResult:
     surface_penalty: SurfacePenalty | None = None
     polish: PolishInfo | None = None
     projection: dict[str, int] | None = None
+    step1: Step1Info | None = None
     warning: str = ""
 
     def _solved_problem(self) -> ContactProblem:
@@ -261,6 +284,14 @@ class ADMMResult:
             f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}",
             "  time [s]: " + ", ".join(f"{name} {value:.3f}" for name, value in t.items()),
         ]
+        if self.step1 is not None:
+            i = self.step1
+            lines.append(
+                f"  step 1 (iterative): {i.krylov_iterations} Krylov iterations in "
+                f"{i.solves} solves ({i.time:.3f} s), {i.unconverged} at their iteration "
+                f"limit, last tolerance {i.last_rtol:.1e}"
+                + (f" ({i.tightened} tightenings after the KKT check)" if i.tightened else "")
+            )
         if self.polish is not None:
             p = self.polish
             at = p.polished_at

@@ -46,6 +46,7 @@ DEFAULT_PREFIX = "admm_"
 _STOPPING = ("kkt", "change")
 _METRICS = ("auto", "mass", "surface")
 _PENALTY_METHODS = ("auto", "dense", "local", "factorised")
+_STEP1 = ("auto", "factorised", "iterative")
 #: The presets: the values each mode starts from. The defaults of the accelerated mode
 #: were chosen by ``benchmarks/acceleration.py``.
 PRESETS: dict[str, dict[str, Any]] = {
@@ -147,8 +148,19 @@ class ADMMSettings:
         polish: Active-set polishing (None: in 2D with ``penalty="auto"`` and a
             factorised step 1; True also in 3D; False: never).
         polish_rounds: Primal-dual active-set corrections per dense polishing guess.
-        petsc_options: Options of the step-1 solver (MUMPS Cholesky by default); also
-            of the inner factorisations of r* when they describe a factorisation.
+        step1: How step 1 solves with A + rK: ``"factorised"`` (MUMPS Cholesky, one
+            factorisation per r), ``"iterative"`` (conjugate gradients with multigrid,
+            warm-started, to a tolerance tied to the outer residual: an inexact ADMM),
+            or ``"auto"``: iterative if ``petsc_options`` choose a Krylov method, or,
+            in 3D, if MUMPS's analysis says the factorisation would not fit in memory
+            or would cost more than the multigrid path (:mod:`admm_dolfinx.admm.plan`);
+            factorised otherwise.
+        step1_rtol: The relative tolerance of an iterative step 1: ``"auto"`` (the
+            inexact rule of :mod:`admm_dolfinx.admm.inexact`) or a fixed number in
+            (0, 1) (also set by ``ksp_rtol`` in ``petsc_options``; not both).
+        petsc_options: Options of the step-1 solver (MUMPS Cholesky, or with an
+            iterative step 1 CG + GAMG, by default); also of the inner factorisations
+            of r* when they describe a factorisation.
         petsc_options_prefix: The solver's options prefix (see :attr:`prefixes`).
     """
 
@@ -166,6 +178,8 @@ class ADMMSettings:
     condensed: bool | None = None
     polish: bool | None = None
     polish_rounds: int = 10
+    step1: str = "auto"
+    step1_rtol: float | str = "auto"
     petsc_options: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
     petsc_options_prefix: str = DEFAULT_PREFIX
 
@@ -250,6 +264,33 @@ class ADMMSettings:
         options = values.get("petsc_options") or {}
         if not isinstance(options, Mapping):
             raise TypeError(f"petsc_options must be a mapping of PETSc options, got {options!r}.")
+        step1 = _choice("step1", values.get("step1", "auto"), _STEP1)
+        step1_rtol = values.get("step1_rtol", "auto")
+        if not (isinstance(step1_rtol, str) and step1_rtol == "auto"):
+            step1_rtol = _real("step1_rtol", step1_rtol)
+            if not 0.0 < step1_rtol < 1.0:
+                raise ValueError(f"step1_rtol must lie in (0, 1) or be 'auto', got {step1_rtol}.")
+        krylov = options.get("ksp_type", "preonly") != "preonly"
+        if step1 == "factorised" and krylov:
+            raise ValueError(
+                f"step1='factorised' conflicts with petsc_options ksp_type="
+                f"{options['ksp_type']!r} (an iterative method): drop one of them."
+            )
+        if step1 == "iterative" and "ksp_type" in options and not krylov:
+            raise ValueError(
+                "step1='iterative' conflicts with petsc_options ksp_type='preonly' (a "
+                "direct solve): drop one of them."
+            )
+        if step1_rtol != "auto" and "ksp_rtol" in options:
+            raise ValueError(
+                f"step1_rtol={step1_rtol} and petsc_options ksp_rtol={options['ksp_rtol']} "
+                "both set the step-1 tolerance: drop one of them."
+            )
+        if step1_rtol != "auto" and step1 == "factorised":
+            raise ValueError(
+                "step1_rtol is the tolerance of an iterative step 1; step1='factorised' "
+                "solves exactly: drop step1_rtol."
+            )
         settings = cls(
             penalty=penalty,
             mode=mode,
@@ -267,6 +308,8 @@ class ADMMSettings:
             condensed=_switch("condensed", values.get("condensed")),
             polish=_switch("polish", values["polish"]),
             polish_rounds=polish_rounds,
+            step1=step1,
+            step1_rtol=step1_rtol,
             petsc_options=MappingProxyType(dict(options)),
             petsc_options_prefix=prefix,
         )
@@ -275,6 +318,13 @@ class ADMMSettings:
 
     def _check_combinations(self) -> None:
         auto = self.penalty == "auto"
+        if self.step1 == "iterative":
+            for name in ("condensed", "polish"):
+                if getattr(self, name) is True:
+                    raise ValueError(
+                        f"{name}=True needs the Schur complement from a factorisation; "
+                        "step1='iterative' has none: drop one of them."
+                    )
         if self.penalty_metric == "surface":
             for failed, reason in (
                 (not auto, "chooses r and β itself: pass penalty='auto'"),

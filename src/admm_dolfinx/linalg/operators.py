@@ -19,7 +19,7 @@ from admm_dolfinx._logging import get_logger
 from admm_dolfinx.linalg.petsc import PetscOwner, check_solve, create_factor_solver
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["FactorisedOperator", "PenalisedOperator"]
+__all__ = ["FactorisedOperator", "IterativeOperator", "PenalisedOperator"]
 
 logger = get_logger(__name__)
 
@@ -74,6 +74,8 @@ class PenalisedOperator(FactorisedOperator):
         self.ksp: PETSc.KSP | None = None
         self.penalty = float("nan")
         self.solves = 0
+        #: Seconds spent in :meth:`solve` so far.
+        self.solve_time = 0.0
         self.timings: dict[str, float] = {"operator": 0.0, "factorization": 0.0}
         self._label = "A + r NᵀMN"
         self._penalty_matrix: PETSc.Mat | None = None
@@ -116,6 +118,8 @@ class PenalisedOperator(FactorisedOperator):
             if self.matrix is None:
                 self.matrix = A.duplicate(copy=True)
                 self.matrix.setOption(PETSc.Mat.Option.SPD, True)
+                # duplicate() drops the rigid-body near null space that multigrid needs
+                self.matrix.setNearNullSpace(A.getNearNullSpace())
             else:
                 A.copy(self.matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
             matrix = self.matrix
@@ -168,6 +172,77 @@ class PenalisedOperator(FactorisedOperator):
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
         """Solve (A + rK) x = b with the stored factorisation."""
         assert self.ksp is not None, "set_penalty must be called first"
+        t0 = time.perf_counter()
         self.ksp.solve(b, x)
+        self.solve_time += time.perf_counter() - t0
         self.solves += 1
         check_solve(self.ksp, self._label)
+
+
+class IterativeOperator(PenalisedOperator):
+    """A + r NᵀMN solved by a Krylov method, warm-started, to a tolerance set per solve.
+
+    The step 1 of the multigrid path: conjugate gradients preconditioned by
+    smoothed-aggregation multigrid (PETSc ``PCGAMG``) with the rigid body modes that the
+    problem attaches to A as near null space, unless the options say otherwise. The
+    preconditioner is set up once per r (in :meth:`set_penalty`) and reused by every
+    solve at that r, across iterations and load steps. Each solve starts from the
+    vector it is given (the previous displacement) and stops at the relative residual
+    :meth:`set_tolerance` last set: the inexact ADMM of
+    :mod:`admm_dolfinx.admm.inexact` chooses it.
+
+    A solve that reaches its iteration limit is counted in :attr:`unconverged` (the
+    ADMM's final check of the KKT residuals judges the answer); a breakdown (an
+    indefinite preconditioner, NaN) raises.
+
+    Attributes:
+        iterations: Krylov iterations of every solve so far.
+        last_iterations: Krylov iterations of the last solve.
+        unconverged: Solves that stopped at their iteration limit.
+        rtol: The relative tolerance of the next solve.
+    """
+
+    def __init__(
+        self,
+        problem: ContactProblem,
+        prefix: str,
+        petsc_options: Mapping[str, Any] | None = None,
+    ):
+        super().__init__(problem, prefix, petsc_options)
+        self.iterations = 0
+        self.last_iterations = 0
+        self.unconverged = 0
+        self.rtol = 1e-8
+
+    def set_tolerance(self, rtol: float) -> None:
+        """Relative residual tolerance of the next solves."""
+        self.rtol = float(rtol)
+        if self.ksp is not None:
+            self.ksp.setTolerances(rtol=self.rtol)
+
+    def _ensure_ksp(self, matrix: PETSc.Mat) -> PETSc.KSP:
+        fresh = self.ksp is None
+        ksp = super()._ensure_ksp(matrix)
+        if fresh:
+            ksp.setInitialGuessNonzero(True)
+            if "ksp_divtol" not in self._options:
+                # a warm start leaves a tiny initial residual, which CG's preconditioned
+                # residual may exceed many times over on its way down: not a divergence
+                ksp.setTolerances(divtol=1e300)
+        ksp.setTolerances(rtol=self.rtol)
+        return ksp
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        """Solve (A + rK) x = b from the initial guess x, to :attr:`rtol`."""
+        ksp = self._factorisation()
+        t0 = time.perf_counter()
+        ksp.solve(b, x)
+        self.solve_time += time.perf_counter() - t0
+        self.solves += 1
+        self.last_iterations = ksp.getIterationNumber()
+        self.iterations += self.last_iterations
+        reason = ksp.getConvergedReason()
+        if reason == PETSc.KSP.ConvergedReason.DIVERGED_MAX_IT:
+            self.unconverged += 1
+            return
+        check_solve(ksp, self._label)

@@ -17,6 +17,7 @@ from petsc4py import PETSc
 
 __all__ = [
     "DEFAULT_FACTOR_OPTIONS",
+    "ITERATIVE_OPTIONS",
     "PetscOwner",
     "apply_options",
     "create_factor_solver",
@@ -39,6 +40,10 @@ DEFAULT_FACTOR_OPTIONS: dict[str, Any] = {
     "pc_type": "cholesky",
     "pc_factor_mat_solver_type": "mumps",
 }
+
+#: An iterative step 1: conjugate gradients preconditioned by smoothed-aggregation
+#: multigrid (the rigid body modes are A's near null space, set by the problem).
+ITERATIVE_OPTIONS: dict[str, Any] = {"ksp_type": "cg", "pc_type": "gamg"}
 
 #: MUMPS ordering in 2D: approximate minimum fill (AMF), faster to factorise than
 #: MUMPS's own choice (METIS) on every 2D mesh of ``python benchmarks/orderings.py``,

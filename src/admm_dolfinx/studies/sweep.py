@@ -9,6 +9,8 @@ sample costs one numeric factorisation plus its iterations.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -134,16 +136,24 @@ def sample_penalty(
     serial = problem.comm.size == 1
     condensed = True if serial and condensed_factor_applies(problem, petsc_options) else None
     solver_options.setdefault("polish", False)
-    with ADMMSolver(
-        problem,
-        penalty=float(r_values[0]),
-        condensed=condensed,
-        mode=mode,
-        rtol=rtol,
-        max_iter=max_iter,
-        petsc_options=petsc_options,
-        **solver_options,
-    ) as solver:
+    # a sweep samples poor penalties on purpose: their slow solves are its data, not
+    # news (the counts are returned), so the solver's slow-convergence warning is muted
+    solver_log = logging.getLogger("admm_dolfinx.admm.solver")
+    mute = _MuteSlowConvergence()
+    solver_log.addFilter(mute)
+    with (
+        _removed_filter(solver_log, mute),
+        ADMMSolver(
+            problem,
+            penalty=float(r_values[0]),
+            condensed=condensed,
+            mode=mode,
+            rtol=rtol,
+            max_iter=max_iter,
+            petsc_options=petsc_options,
+            **solver_options,
+        ) as solver,
+    ):
         for k, r in enumerate(r_values):
             solver.set_penalty(float(r))
             try:
@@ -159,3 +169,16 @@ def sample_penalty(
     return PenaltySweep(
         r=r_values, iterations=iterations, converged=converged, time=time.perf_counter() - t0
     )
+
+
+class _MuteSlowConvergence(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not getattr(record, "slow_convergence", False)
+
+
+@contextlib.contextmanager
+def _removed_filter(log: logging.Logger, mute: logging.Filter):
+    try:
+        yield
+    finally:
+        log.removeFilter(mute)

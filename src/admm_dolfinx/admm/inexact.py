@@ -1,0 +1,75 @@
+"""The step-1 tolerance of an inexact ADMM (an iterative step 1).
+
+Over-relaxed ADMM still converges when its subproblems are solved inexactly, provided
+the errors are summable: Σ_k ε_k < ∞ (Eckstein & Bertsekas 1992, Theorem 8; the same
+condition as for the inexact proximal point method, Rockafellar 1976). A fixed inner
+tolerance is not summable: the outer residual stalls at the level of the inner error.
+So the relative residual asked of the step-1 Krylov solve of iteration k is
+
+    τ_k = max(τ_floor, min(τ_0 / k^q, σ r_{k−1})),
+
+with r_{k−1} the previous scaled fixed-point residual (the quantity the outer iteration
+is driving to zero): σ r_{k−1} keeps the inner error a fixed factor below what the
+outer iteration still has to gain, and τ_0 / k^q (q > 1) makes the sequence summable
+whatever the outer rate; τ_floor (:data:`TAU_FLOOR`) is where CG's relative residual
+meets round-off. Warm-started from the previous displacement, each solve then
+costs a few Krylov iterations once the outer iteration settles.
+
+The loop's residuals rest on identities of exact step-1 solves; the KKT residuals
+recomputed from (u, λ) when the stopping test is met do not. If they show that the
+step-1 error dominates, every tolerance is scaled down by :data:`TIGHTEN`
+(:meth:`InexactRule.tighten`) and the iteration goes on; only when the tolerances have
+reached :data:`TAU_FLOOR` is the solve reported as ``"inexact_step1"``.
+``converged=True`` keeps its meaning: the recomputed residuals meet ``kkt_tol``.
+"""
+
+from __future__ import annotations
+
+__all__ = ["SIGMA", "TAU_0", "TAU_FLOOR", "InexactRule"]
+
+#: The first (and largest) inner tolerance.
+TAU_0 = 1e-2
+#: The inner tolerance relative to the previous outer residual.
+SIGMA = 1e-3
+#: The summable envelope's exponent q.
+DECAY = 1.5
+#: The smallest tolerance: below it the relative residual of CG is round-off.
+TAU_FLOOR = 1e-13
+#: Every τ_k is scaled by this when the KKT check finds the step-1 error too large.
+TIGHTEN = 1e-2
+
+
+class InexactRule:
+    """The inner tolerances τ_k of an iterative step 1.
+
+    Args:
+        fixed: A fixed tolerance (the user's ``step1_rtol`` or ``ksp_rtol``), or None
+            for the adaptive rule.
+    """
+
+    def __init__(self, fixed: float | None = None):
+        self.fixed = fixed
+        self.scale = 1.0
+        self.tightened = 0
+
+    def tolerance(self, k: int, last_residual: float | None) -> float:
+        """τ_k for iteration k ≥ 1, given the previous fixed-point residual (None at first)."""
+        if self.fixed is not None:
+            return self.fixed
+        tau = TAU_0 / k**DECAY
+        if last_residual is not None and last_residual == last_residual:  # not NaN
+            tau = min(tau, SIGMA * last_residual)
+        return max(TAU_FLOOR, self.scale * tau)
+
+    def tighten(self) -> bool:
+        """Scale every tolerance down (the KKT check found the step-1 error too large).
+
+        Returns:
+            False if they cannot go lower (a fixed tolerance, or the floor is at
+            :data:`TAU_FLOOR`): the step-1 error then stands.
+        """
+        if self.fixed is not None or self.scale * TAU_0 * TIGHTEN**2 <= TAU_FLOOR:
+            return False
+        self.scale *= TIGHTEN
+        self.tightened += 1
+        return True

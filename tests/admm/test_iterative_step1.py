@@ -1,0 +1,152 @@
+"""The multigrid step 1: CG + GAMG with the rigid-body near null space, warm-started, to
+inner tolerances tied to the outer residual (the inexact ADMM), and the plan that
+chooses it from MUMPS's own analysis."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import admm_dolfinx.admm.plan as plan_module
+from admm_dolfinx import ADMMConvergenceError, ADMMSolver
+from admm_dolfinx.admm.inexact import TAU_FLOOR, InexactRule
+from admm_dolfinx.linalg.factor_estimate import mumps_estimate
+from admm_dolfinx.scenes import example1, example3
+
+pytestmark = pytest.mark.timeout(600)
+
+
+def _rel(a, b) -> float:
+    return (a - b).norm() / b.norm()
+
+
+@pytest.mark.parametrize("scene", [lambda: example1(h=1 / 16), lambda: example3(level=1)])
+def test_iterative_step1_gives_the_factorised_answer(scene):
+    """The same discrete solution as the factorised step 1 (both to rtol 1e-10), with
+    converged=True meaning the recomputed KKT residuals meet the tolerance."""
+    problem = scene().problem()
+    with ADMMSolver(problem, step1="factorised", rtol=1e-10) as direct:
+        exact = direct.solve()
+    with ADMMSolver(problem, step1="iterative", rtol=1e-10) as iterative:
+        assert iterative.plan.step1 == "iterative" and iterative.plan.inner_rtol == "adaptive"
+        result = iterative.solve()
+    assert result.converged and result.kkt.max() <= 1e-10
+    assert _rel(result.u.x.petsc_vec, exact.u.x.petsc_vec) <= 1e-8
+    assert result.step1.krylov_iterations >= result.step1.solves == result.iterations
+    assert result.step1.unconverged == 0
+    assert "step 1 (iterative)" in result.summary()
+
+
+def test_the_multigrid_sees_the_rigid_body_modes_and_is_set_up_once_per_r():
+    """The step-1 matrix carries the near null space (a duplicate() of A would drop it);
+    a second solve at the same r (a load step) sets up no new multigrid."""
+    problem = example3(level=1).problem()
+    with ADMMSolver(problem, step1="iterative") as solver:
+        operators = solver.ksp.getPC().getOperators()[1]
+        space = operators.getNearNullSpace()
+        assert space is not None and len(space.getVecs()) == 6
+        assert solver.ksp.getPC().getType() == "gamg"
+        PETSc.Log.begin()
+        event = PETSc.Log.Event("PCSetUp_GAMG+")  # a multigrid hierarchy built
+        solver.solve()
+        before = event.getPerfInfo()["count"]
+        first = solver.solve()
+        assert event.getPerfInfo()["count"] == before  # nothing rebuilt
+        warm = solver.solve(warm_start=first)
+        assert warm.step1.krylov_iterations < first.step1.krylov_iterations
+
+
+def test_a_fixed_inner_tolerance_stalls_and_says_so():
+    """The reason for the rule: at a fixed ksp_rtol 1e-6 the outer residual stalls at
+    the inner error; the error names the fix."""
+    problem = example3(level=1).problem()
+    with ADMMSolver(problem, step1="iterative", step1_rtol=1e-4, max_iter=150) as solver:
+        with pytest.raises(ADMMConvergenceError, match="step1_rtol='auto'"):
+            solver.solve()
+    with ADMMSolver(problem, step1="iterative", max_iter=150) as solver:
+        assert solver.solve().converged
+
+
+def test_inexact_rule_is_summable_tied_to_the_residual_and_tightens():
+    rule = InexactRule()
+    taus = [rule.tolerance(k, None) for k in range(1, 2000)]
+    assert all(b <= a for a, b in itertools.pairwise(taus))
+    assert sum(taus) < 0.05  # τ_0 ζ(1.5) < 0.03: summable
+    assert rule.tolerance(5, 1e-4) == pytest.approx(1e-7)  # σ r_{k-1}
+    assert rule.tolerance(5, 1e-20) == TAU_FLOOR
+    loose = rule.tolerance(3, 1e-3)
+    assert rule.tighten() and rule.tolerance(3, 1e-3) == pytest.approx(loose * 1e-2)
+    while rule.tighten():
+        pass
+    assert rule.tolerance(1, 1.0) >= TAU_FLOOR
+    assert not InexactRule(1e-8).tighten()  # a fixed tolerance stands
+
+
+@pytest.mark.parametrize(
+    "given, message",
+    [
+        ({"step1": "factorised", "petsc_options": {"ksp_type": "cg"}}, "conflicts"),
+        ({"step1": "iterative", "petsc_options": {"ksp_type": "preonly"}}, "conflicts"),
+        ({"step1_rtol": 1e-8, "petsc_options": {"ksp_rtol": 1e-8}}, "both set"),
+        ({"step1": "factorised", "step1_rtol": 1e-8}, "solves exactly"),
+        ({"step1": "iterative", "polish": True}, "Schur complement"),
+        ({"step1": "direct"}, "step1 must be one of"),
+        ({"step1_rtol": 2.0}, r"\(0, 1\)"),
+    ],
+)
+def test_step1_settings_conflicts_raise(given, message):
+    from admm_dolfinx import ADMMSettings
+
+    with pytest.raises(ValueError, match=message):
+        ADMMSettings.create(**given)
+
+
+def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):
+    """3D, step1='auto', no options: factorised while MUMPS's estimate is small; above
+    the flop limit, or beyond the memory budget, multigrid, with the reason given."""
+    problem = example3(level=1).problem()
+    with ADMMSolver(problem) as solver:
+        assert solver.plan.step1 == "factorised"
+        assert "GB and" in solver.plan.describe()
+    monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", 1.0)
+    with ADMMSolver(problem) as solver:
+        assert solver.plan.step1 == "iterative" and "flops" in solver.plan.describe()
+        assert solver.solve().converged
+    monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", 1e30)
+    monkeypatch.setattr(plan_module, "available_memory", lambda: 1e3)
+    with ADMMSolver(problem) as solver:
+        assert solver.plan.step1 == "iterative" and "available" in solver.plan.describe()
+    with ADMMSolver(problem, step1="factorised") as solver:  # the user's choice stands
+        assert solver.plan.step1 == "factorised"
+
+
+def test_mumps_estimate_matches_the_factorisation_it_predicts():
+    """MUMPS's analysis against the factorisation itself: the same operation count
+    (Cholesky of an SPD matrix: no pivoting changes it) and no more factor entries."""
+    problem = example3(level=1).problem()
+    estimate = mumps_estimate(problem.A)
+    assert estimate is not None and estimate.memory > 0 and estimate.flops > 0
+    B = problem.A.duplicate(copy=True)
+    B.setOption(PETSc.Mat.Option.SPD, True)
+    ksp = PETSc.KSP().create(problem.comm)
+    try:
+        ksp.setOperators(B)
+        ksp.setType("preonly")
+        ksp.getPC().setType("cholesky")
+        ksp.getPC().setFactorSolverType("mumps")
+        ksp.setUp()
+        factor = ksp.getPC().getFactorMatrix()
+        flops = factor.getMumpsRinfog(3)  # RINFOG(3): the elimination's operations
+        entries = factor.getMumpsInfog(29)  # INFOG(29): effective factor entries
+    finally:
+        ksp.destroy()
+        B.destroy()
+    assert flops == pytest.approx(estimate.flops, rel=0.05)
+    if entries > 0:
+        assert entries <= estimate.factor_entries * 1.05
+    assert MPI.COMM_WORLD.allreduce(estimate.flops, op=MPI.MAX) == estimate.flops  # global
+    assert np.isfinite(estimate.memory_per_process)
