@@ -60,7 +60,6 @@ LADDER = {
     "1.2M": (4, 0.3, 0.28),
     "2.2M": (4, 0.23, 0.215),
     "graded 350k": (3, 0.12, 0.6),
-    "graded 1.1M": (3, 0.075, 0.6),
 }
 QUICK = {"20k": (2, 0.3, 0.28), "graded 40k": (2, 0.12, 0.6)}
 CONFIGS = ("default", "factorised", "iterative", "plain CG+GAMG", "SNES VI")
