@@ -103,7 +103,10 @@ def print_and_save(rows: Sequence[dict], path: Path) -> None:
     if _page_wanted():
         if not _tables:
             atexit.register(_write_page)
-        _tables.append((Path(path).stem.replace("_", " "), table))
+        name = Path(path).stem.replace("_", " ")
+        # a table saved again as it grows (a script's progress) keeps its last version
+        _tables[:] = [(n, t) for n, t in _tables if n != name]
+        _tables.append((name, table))
     keys: list[str] = []
     for row in rows:
         keys += [k for k in row if k not in keys]

@@ -32,7 +32,7 @@ displacement, so a polished solve ends as soon as ADMM has found the contact set
 
 In 3D the default measures the penalty in the *surface metric* r(M + βL_Γ) instead
 of r M (``penalty_metric``; :mod:`admm_dolfinx.linalg.surface_metric`): step 1 factorises
-A + rNᵀ(M + βL_Γ)N and steps 2–3 become a small QP on Γ_C, solved exactly on rank 0.
+A + rNᵀ(M + βL_Γ)N and steps 2–3 become a small QP on Γ_C, solved exactly (distributed).
 The pencil that sets ADMM's rate is then well conditioned on every mesh, so the
 iteration count no longer grows under refinement.
 

@@ -55,7 +55,7 @@ class MassMetricStep:
 
 
 class SurfaceMetricStep:
-    """Steps 2–3 in the surface metric r(M + βL_Γ): the QP on Γ_C (rank 0).
+    """Steps 2–3 in the surface metric r(M + βL_Γ): the QP on Γ_C (distributed).
 
     Args:
         metric: The surface metric's operators.

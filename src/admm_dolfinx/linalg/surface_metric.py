@@ -16,13 +16,12 @@ fixed points; its steps in this metric are :mod:`admm_dolfinx.admm.surface_proje
 This module holds the operators: L_Γ (a UFL form with the tangential gradient), the
 sparse matrix P_N of the contact directions, Nᵀ L_Γ N = P_Nᵀ L_Γ P_N (exact, in
 parallel by PETSc: the trace u·n_h of a P1 field is quadratic on a facet, so no UFL
-form would be), and L_Γ on the contact nodes gathered on rank 0 for the step-2 QP.
+form would be), and L_Γ on the contact nodes, distributed like the contact m-vectors,
+for the step-2 QP.
 The choice of β and r is :mod:`admm_dolfinx.penalty.surface`'s.
 """
 
 from __future__ import annotations
-
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -33,7 +32,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
-from admm_dolfinx._mpi import OnRank0, RankLayout, gather_csr
+from admm_dolfinx._mpi import RankLayout, gather_csr
 from admm_dolfinx.linalg.petsc import PetscOwner
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_set import contact_measure
@@ -58,16 +57,16 @@ class SurfaceMetric(PetscOwner):
         layout: How the contact nodes lie over the ranks (gathered m-vectors: rank order).
     """
 
-    _petsc_objects = ("surface_stiffness", "normal_map", "normal_stiffness")
+    _petsc_objects = ("surface_stiffness", "normal_map", "normal_stiffness", "contact_laplacian")
     # Assembled by the constructor (:meth:`_build`), freed and set to None by
     # :meth:`destroy`, after which the metric is not to be used.
     surface_stiffness: PETSc.Mat
     normal_map: PETSc.Mat
     normal_stiffness: PETSc.Mat
+    contact_laplacian: PETSc.Mat
 
     def __init__(self, problem: ContactProblem):
         self.problem = problem
-        self._rank0: dict[str, Any] | None = None
         self._k_max_squared: float | None = None
         self._work: tuple[PETSc.Vec, PETSc.Vec] | None = None
         self._force: PETSc.Vec | None = None
@@ -78,7 +77,7 @@ class SurfaceMetric(PetscOwner):
             raise
 
     def _build(self) -> None:
-        """Assemble L_Γ, P_N and Nᵀ L_Γ N; gather L_Γ on the contact nodes to rank 0."""
+        """Assemble L_Γ, P_N, Nᵀ L_Γ N and L_Γ on the contact nodes."""
         problem = self.problem
         comm = problem.comm
         c = problem.contact
@@ -112,98 +111,73 @@ class SurfaceMetric(PetscOwner):
         self.normal_map = P
         self.normal_stiffness = self.surface_stiffness.ptap(P)
 
-        # L_Γ restricted to the contact nodes, gathered on rank 0 in rank order
+        # L_Γ restricted to the contact nodes, distributed like the m-vectors: row i on
+        # a rank is its i-th owned contact node (the order of c.dofs)
         index_set = PETSc.IS().createGeneral(rows, comm=comm)
-        sub = self.surface_stiffness.createSubMatrix(index_set, index_set)
-        csr = sub.getValuesCSR()
-        sub.destroy()
-        index_set.destroy()
+        try:
+            #: L_Γ on the contact nodes (m × m, the layout of the m-vectors).
+            self.contact_laplacian = self.surface_stiffness.createSubMatrix(index_set, index_set)
+        finally:
+            index_set.destroy()
         #: How the contact nodes lie over the ranks (the order of gathered m-vectors).
         self.layout = RankLayout(comm, c.dofs.size)
-        gathered = gather_csr(comm, csr)
-        masses = self.layout.gather(c.mass)
-
-        def failure(name: str, text: str, _: bool) -> Exception:
-            return RuntimeError(f"Gathering L_Γ on rank 0 failed: {name}: {text}")
-
-        with OnRank0(comm, failure, broadcast=False) as work:
-            if work.here:
-                assert gathered is not None  # gather_csr stacks the rows on rank 0
-                indptr, indices, data = gathered
-                m = self.layout.total
-                laplacian = PETSc.Mat().createAIJ(
-                    (m, m),
-                    csr=(indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType), data),
-                    comm=PETSc.COMM_SELF,
-                )
-                work.value = {"laplacian": laplacian, "mass": masses}
-        #: L_Γ and M on the contact nodes, on rank 0 (None elsewhere).
-        self._rank0 = work.value
 
     @property
     def k_max_squared(self) -> float:
-        """k²_max: the largest eigenvalue of L_Γ x = k² M x (SLEPc, rank 0); collective."""
+        """k²_max: the largest eigenvalue of L_Γ x = k² M x (SLEPc); collective.
+
+        Computed on the distributed M^{-½} L_Γ M^{-½}, started from the contact nodes'
+        partition-independent probe values, so that it is the same on any partition
+        to the eigenvalue tolerance.
+        """
         if self._k_max_squared is None:
-
-            def failure(name: str, text: str, _: bool) -> Exception:
-                return RuntimeError(
-                    f"The largest eigenvalue of the contact surface's Laplacian failed: "
-                    f"{name}: {text}"
-                )
-
-            with OnRank0(self.problem.comm, failure) as work:
-                if work.here:
-                    work.value = self._largest_surface_eigenvalue()
-            self._k_max_squared = work.value
+            self._k_max_squared = self._largest_surface_eigenvalue()
         return self._k_max_squared
 
-    def _rank0_data(self) -> dict[str, Any]:
-        """L_Γ (``"laplacian"``) and M (``"mass"``) on the contact nodes; rank 0 only.
-
-        Raises:
-            RuntimeError: On another rank, or after :meth:`destroy`.
-        """
-        if self._rank0 is None:
-            raise RuntimeError(
-                "L_Γ on the contact nodes is held by rank 0 only, until the metric is destroyed."
-            )
-        return self._rank0
-
     def _largest_surface_eigenvalue(self) -> float:
-        rank0 = self._rank0_data()
-        laplacian, mass = rank0["laplacian"], rank0["mass"]
-        scaled = laplacian.copy()
-        scale = scaled.createVecLeft()
-        scale.array[:] = 1.0 / np.sqrt(mass)
+        c = self.problem.contact
+        scaled = self.contact_laplacian.copy()
+        scale, start = scaled.createVecs()
+        scale.array[:] = 1.0 / np.sqrt(c.mass)
+        start.array[:] = c.probe
         scaled.diagonalScale(scale, scale)
-        eps = SLEPc.EPS().create(comm=PETSc.COMM_SELF)
+        eps = SLEPc.EPS().create(comm=self.problem.comm)
         try:
             eps.setOperators(scaled)
             eps.setProblemType(SLEPc.EPS.ProblemType.HEP)
             eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
             eps.setDimensions(nev=1, ncv=min(scaled.getSize()[0], 16))
             eps.setTolerances(tol=1e-4, max_it=1000)
+            eps.setInitialSpace([start])
             eps.solve()
             if eps.getConverged() < 1:
-                raise RuntimeError(f"SLEPc reason {eps.getConvergedReason()}")
+                raise RuntimeError(
+                    "The largest eigenvalue of the contact surface's Laplacian did not "
+                    f"converge (SLEPc reason {eps.getConvergedReason()})."
+                )
             return float(eps.getEigenvalue(0).real)
         finally:
             eps.destroy()
             scaled.destroy()
             scale.destroy()
+            start.destroy()
 
     def dense_laplacian(self) -> npt.NDArray[np.float64] | None:
         """L_Γ on the contact nodes in rank order, dense, on rank 0 (None elsewhere).
 
-        For dense checks of the metric (tests, ``benchmarks/surface_metric.py``).
+        For dense checks of the metric (tests, ``benchmarks/surface_metric.py``);
+        collective.
         """
-        if self._rank0 is None:
+        indptr, indices, data = self.contact_laplacian.getValuesCSR()
+        gathered = gather_csr(self.problem.comm, (indptr, indices, data))
+        if gathered is None:
             return None
-        dense = self._rank0["laplacian"].convert("dense", out=None)
-        try:
-            return dense.getDenseArray().copy()
-        finally:
-            dense.destroy()
+        indptr, indices, data = gathered
+        m = self.layout.total
+        dense = np.zeros((m, m))
+        rows = np.repeat(np.arange(m), np.diff(indptr))
+        np.add.at(dense, (rows, indices), data)
+        return dense
 
     def penalty_matrix(self, beta: float) -> PETSc.Mat:
         """Nᵀ(M + βL_Γ)N = K + β Nᵀ L_Γ N, in A's sparsity pattern (caller destroys it)."""
@@ -263,13 +237,9 @@ class SurfaceMetric(PetscOwner):
         return True
 
     def destroy(self) -> None:
-        """Free the PETSc objects, the rank-0 copy of L_Γ included."""
+        """Free the PETSc objects."""
         super().destroy()
         for vec in (*(getattr(self, "_work", None) or ()), getattr(self, "_force", None)):
             if vec is not None:
                 vec.destroy()
         self._work = self._force = None
-        rank0 = getattr(self, "_rank0", None)
-        if rank0 is not None:
-            rank0["laplacian"].destroy()
-            self._rank0 = None
