@@ -51,24 +51,27 @@ class InexactRule:
         self.fixed = fixed
         self.scale = 1.0
         self.tightened = 0
+        self.last = float("inf")  # the tolerance last handed out
 
     def tolerance(self, k: int, last_residual: float | None) -> float:
         """τ_k for iteration k ≥ 1, given the previous fixed-point residual (None at first)."""
         if self.fixed is not None:
+            self.last = self.fixed
             return self.fixed
         tau = TAU_0 / k**DECAY
         if last_residual is not None and last_residual == last_residual:  # not NaN
             tau = min(tau, SIGMA * last_residual)
-        return max(TAU_FLOOR, self.scale * tau)
+        self.last = max(TAU_FLOOR, self.scale * tau)
+        return self.last
 
     def tighten(self) -> bool:
         """Scale every tolerance down (the KKT check found the step-1 error too large).
 
         Returns:
-            False if they cannot go lower (a fixed tolerance, or the floor is at
-            :data:`TAU_FLOOR`): the step-1 error then stands.
+            False if they cannot go lower (a fixed tolerance, or the solves already
+            ran at :data:`TAU_FLOOR`): the step-1 error then stands.
         """
-        if self.fixed is not None or self.scale * TAU_0 * TIGHTEN**2 <= TAU_FLOOR:
+        if self.fixed is not None or self.last <= TAU_FLOOR:
             return False
         self.scale *= TIGHTEN
         self.tightened += 1

@@ -287,6 +287,12 @@ class ADMMSolver:
         """
         r = check_penalty(r)
         self._step1.set_penalty(r)
+        logger.info(
+            "step 1: %s set up at r = %.6g in %.3g s",
+            self.plan.step1,
+            r,
+            self._step1.timings["factorization"],
+        )
         if self.polisher is not None:
             self.polisher.set_penalty(r)
 
@@ -527,9 +533,18 @@ class ADMMSolver:
                 time=step1.solve_time - work_before[3],
             )
         result = self._result(
-            u, lam, status, iterations, history, kkt, polished_at, t_iter, t_kkt, t_start
+            u,
+            lam,
+            status,
+            iterations,
+            history,
+            kkt,
+            polished_at,
+            t_iter,
+            t_kkt,
+            t_start,
+            step1_info,
         )
-        result.step1 = step1_info
         if result.warning:
             logger.warning("%s", result.warning, extra={"slow_convergence": True})
         if status not in ("converged", "callback"):
@@ -594,7 +609,18 @@ class ADMMSolver:
         return max(residuals[key] for key in keys) <= s.rtol
 
     def _result(
-        self, u, lam, status, iterations, history, kkt, polished_at, t_iter, t_kkt, t_start
+        self,
+        u,
+        lam,
+        status,
+        iterations,
+        history,
+        kkt,
+        polished_at,
+        t_iter,
+        t_kkt,
+        t_start,
+        step1_info,
     ):
         problem, polisher = self.problem, self.polisher
         penalty_time = (
@@ -654,6 +680,7 @@ class ADMMSolver:
             surface_penalty=self.surface_penalty,
             polish=polish,
             projection=self._step.statistics(),
+            step1=step1_info,
             warning=self._slow_convergence_warning(history, converged),
         )
 

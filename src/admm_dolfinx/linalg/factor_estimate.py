@@ -21,6 +21,7 @@ import ctypes.util
 import functools
 from dataclasses import dataclass
 
+from mpi4py import MPI
 from petsc4py import PETSc
 
 __all__ = ["FactorEstimate", "available_memory", "mumps_estimate"]
@@ -96,11 +97,18 @@ def mumps_estimate(A: PETSc.Mat) -> FactorEstimate | None:
     rows = PETSc.IS().createStride(A.getLocalSize()[0], A.getOwnershipRange()[0], 1, A.getComm())
     factor = voidp()
     info = (ctypes.c_double * 64)()  # MatFactorInfo: a few PetscReals, generously sized
+    comm = A.getComm().tompi4py()
     try:
-        if lib.MatGetFactor(voidp(pattern.handle), b"mumps", _MAT_FACTOR_CHOLESKY, factor):
-            return None  # no MUMPS in this PETSc: the error is PETSc's, no estimate
+        # a failure on any rank (no MUMPS in this PETSc, an error of the analysis) is
+        # a failure on all, so that no rank waits in a collective call alone
+        code = lib.MatGetFactor(voidp(pattern.handle), b"mumps", _MAT_FACTOR_CHOLESKY, factor)
+        if comm.allreduce(bool(code), op=MPI.LOR):
+            return None
         lib.MatFactorInfoInitialize(info)
-        if lib.MatCholeskyFactorSymbolic(factor, voidp(pattern.handle), voidp(rows.handle), info):
+        code = lib.MatCholeskyFactorSymbolic(
+            factor, voidp(pattern.handle), voidp(rows.handle), info
+        )
+        if comm.allreduce(bool(code), op=MPI.LOR):
             return None
         values = {}
         for k in (16, 17, 20):

@@ -15,13 +15,10 @@ from typing import Any
 from dolfinx.common import Timer
 from petsc4py import PETSc
 
-from admm_dolfinx._logging import get_logger
 from admm_dolfinx.linalg.petsc import PetscOwner, check_solve, create_factor_solver
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["FactorisedOperator", "IterativeOperator", "PenalisedOperator"]
-
-logger = get_logger(__name__)
 
 
 class FactorisedOperator(PetscOwner):
@@ -131,7 +128,6 @@ class PenalisedOperator(FactorisedOperator):
             self.timings["factorization"] = time.perf_counter() - t0
         self.penalty = float(r)
         self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
-        logger.info("step 1: set up %s in %.3g s", self._label, self.timings["factorization"])
 
     def _ensure_ksp(self, matrix: PETSc.Mat) -> PETSc.KSP:
         """Create the KSP (factorising), or tell it that the matrix values changed.

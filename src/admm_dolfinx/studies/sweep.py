@@ -138,11 +138,8 @@ def sample_penalty(
     solver_options.setdefault("polish", False)
     # a sweep samples poor penalties on purpose: their slow solves are its data, not
     # news (the counts are returned), so the solver's slow-convergence warning is muted
-    solver_log = logging.getLogger("admm_dolfinx.admm.solver")
-    mute = _MuteSlowConvergence()
-    solver_log.addFilter(mute)
     with (
-        _removed_filter(solver_log, mute),
+        _slow_convergence_muted(),
         ADMMSolver(
             problem,
             penalty=float(r_values[0]),
@@ -177,7 +174,10 @@ class _MuteSlowConvergence(logging.Filter):
 
 
 @contextlib.contextmanager
-def _removed_filter(log: logging.Logger, mute: logging.Filter):
+def _slow_convergence_muted():
+    """Drop the solver's slow-convergence warning (only that one) inside the block."""
+    log, mute = logging.getLogger("admm_dolfinx.admm.solver"), _MuteSlowConvergence()
+    log.addFilter(mute)
     try:
         yield
     finally:
