@@ -10,6 +10,7 @@ from mpi4py import MPI
 
 import admm_dolfinx.admm.polish_dense as polish_module
 from admm_dolfinx import ADMMSolver
+from admm_dolfinx.admm.polish_sparse import SparsePolish
 from admm_dolfinx.scenes.library import example1, example2, example3
 from admm_dolfinx.studies.baselines import solve_snes_vi
 
@@ -99,6 +100,43 @@ def test_attempt_gives_the_exact_state_from_the_true_active_set():
         assert polisher.attempt(normal_u, q, true_active, budget=-1.0) is None
         assert (polisher.skipped, polisher.attempts, polisher.rounds) == (1, 0, 0)
         assert polisher.attempt(normal_u, q, true_active) is not None
+
+
+@pytest.mark.parametrize("kind", ["dense", "sparse"])
+def test_a_walk_cut_short_by_its_round_limit_is_resumed(kind):
+    """Attempts that join a walk stopped by its round limit go on where it stopped.
+
+    The corrections depend on the active set alone, so attempts of one round each,
+    all from the same guess, reach the solution that one long walk reaches, and
+    together compute each correction once (the edge of the contact zone moves by about
+    half its error per round: on fine meshes a walk needs more rounds than one attempt
+    may take).
+    """
+    problem = example1(h=1 / 32).problem()
+    with ADMMSolver(problem) as solver:
+        normal_u, q = _one_step(solver)
+        polisher = solver.polisher if kind == "dense" else SparsePolish(problem, "test_walk_")
+        try:
+            empty = np.zeros(problem.contact.gap.size, dtype=bool)
+            polisher.reset()
+            polisher.max_rounds = 100
+            long_walk = polisher.attempt(normal_u, q, empty)
+            needed = polisher.rounds
+            assert long_walk is not None and needed >= 3
+            polisher.reset()
+            polisher.max_rounds = 1
+            outcomes = [polisher.attempt(normal_u, q, empty) for _ in range(needed)]
+            assert all(outcome is None for outcome in outcomes[:-1])
+            assert outcomes[-1] is not None
+            assert polisher.rounds == needed  # no correction computed twice
+            for resumed, whole in zip(outcomes[-1], long_walk, strict=True):
+                assert rel_diff(_global(problem, resumed), _global(problem, whole)) <= 1e-10
+            # the walk has ended: the same guess gives nothing new, at no cost
+            assert polisher.attempt(normal_u, q, empty) is None
+            assert polisher.rounds == needed
+        finally:
+            if kind == "sparse":
+                polisher.destroy()
 
 
 def test_failed_attempts_leave_the_iteration_converging():

@@ -22,9 +22,10 @@ the contact pencil.
 
 The guess 𝒜 = {λ⁺ > 0} comes from the ADMM iterate. It is corrected by
 primal-dual active-set steps (nodes with λ < 0 leave 𝒜, nodes that penetrate join it),
-at most ``polish_rounds`` of them (the solver's setting; :data:`MAX_ROUNDS` by
-default); a guess already tried is not tried again (the
-outcome depends on 𝒜 alone). An empty guess (the first iterates, before ADMM
+at most ``polish_rounds`` new ones per attempt (the solver's setting;
+:data:`MAX_ROUNDS` by default). The outcome depends on 𝒜 alone, so each correction
+is computed once per solve and an attempt that joins an earlier walk goes on where
+it stopped (:mod:`admm_dolfinx.admm.active_set`). An empty guess (the first iterates, before ADMM
 predicts any contact) starts from the unconstrained solution: its penetrating nodes
 join first. For a floating body that system is singular, and the attempt fails
 until ADMM's guess holds the body. Only a state that satisfies every sign condition is
@@ -50,6 +51,7 @@ import numpy.typing as npt
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import RankLayout, from_rank0
+from admm_dolfinx.admm.active_set import ActiveSetWalk
 from admm_dolfinx.penalty.dense import compliance_matrix
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
@@ -101,7 +103,7 @@ class ActiveSetPolish:
         self._compliance: npt.NDArray[np.float64] | None = None
         self._shifted: npt.NDArray[np.float64] | None = None
         self._gap: npt.NDArray[np.float64] | None = None
-        self._tried: set[bytes] = set()
+        self._walk: ActiveSetWalk[tuple] = ActiveSetWalk(lambda active: active.tobytes())
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0
 
@@ -128,7 +130,7 @@ class ActiveSetPolish:
             return
         t0 = time.perf_counter()
         self.penalty = float(r)
-        self._tried.clear()
+        self._walk.clear()
         self._compliance = self._shifted = None
         if self.comm.rank == 0:
             try:  # never raise on rank 0 alone: the other ranks would wait
@@ -159,7 +161,7 @@ class ActiveSetPolish:
     def reset(self) -> None:
         """Start a solve: read the current gap; forget the guesses tried; collective."""
         self._gap = self._layout.gather(self.problem.contact.gap)
-        self._tried.clear()
+        self._walk.clear()
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0
 
@@ -216,28 +218,26 @@ class ActiveSetPolish:
         Returns:
             ((p, λ) or None, the number of dense solves).
         """
-        if self._compliance is None or guess.tobytes() in self._tried:
+        if self._compliance is None:
             return None, 0
         sq, g = self._sqrt_mass, self._gap
         t = sq * normal_u - self._compliance @ (sq * force)
         finite = np.isfinite(g)
-        active = guess
-        for rounds in range(1, self.max_rounds + 1):
-            self._tried.add(active.tobytes())
+
+        def step(active):
             solution = self._equality_solution(t, active, sq * np.where(active, g, 0.0))
             if solution is None:
-                return None, rounds
+                return None, None
             nu, lam = solution[0] / sq, solution[1] / sq
             lam_tol = SIGN_TOL * float(np.max(np.abs(lam)))
             u_tol = SIGN_TOL * max(np.max(np.abs(nu)), np.max(np.abs(g[finite]), initial=0.0))
             leave = active & (lam < -lam_tol)
             join = ~active & (nu > g + u_tol)
             if not leave.any() and not join.any():
-                return (np.minimum(nu, g), np.maximum(lam, 0.0)), rounds
-            active = (active & ~leave) | join
-            if active.tobytes() in self._tried:
-                return None, rounds
-        return None, self.max_rounds
+                return (np.minimum(nu, g), np.maximum(lam, 0.0)), None
+            return None, (active & ~leave) | join
+
+        return self._walk.walk(guess, step, self.max_rounds)
 
     def _equality_solution(self, t, active, y_active):
         """Solve (I − rT) ŷ + T λ̂ = t with ŷ_𝒜 given and λ̂ = 0 off 𝒜 (rank 0)."""

@@ -17,7 +17,8 @@ sparsity is A's, so the symbolic analysis is done once); distributed like step 1
 any partition.
 
 As the dense polisher, it corrects the guess by primal-dual active-set steps (nodes
-with λ < 0 leave 𝒜, nodes that penetrate join it; at most :data:`MAX_SPARSE_ROUNDS`),
+with λ < 0 leave 𝒜, nodes that penetrate join it; at most :data:`MAX_SPARSE_ROUNDS`
+new ones per attempt, each computed once per solve: :mod:`admm_dolfinx.admm.active_set`),
 returns only a state that meets every sign condition, and skips attempts while it
 has taken longer than the rest of the iterations.
 """
@@ -36,6 +37,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
+from admm_dolfinx.admm.active_set import ActiveSetWalk
 from admm_dolfinx.admm.polish_dense import SIGN_TOL
 from admm_dolfinx.linalg.contact_space import NodalMap, projected_stiffness
 from admm_dolfinx.linalg.petsc import check_solve, create_factor_solver
@@ -80,11 +82,13 @@ class SparsePolish:
         self.comm: MPI.Comm = problem.comm
         self.prefix = prefix
         self._options = dict(petsc_options or {})
+        #: Primal-dual active-set corrections per guess.
+        self.max_rounds = MAX_SPARSE_ROUNDS
         self.penalty = float("nan")
         self.setup_time = 0.0
         self._matrix: PETSc.Mat | None = None
         self._ksp: PETSc.KSP | None = None
-        self._tried: set[bytes] = set()
+        self._walk: ActiveSetWalk[tuple] = ActiveSetWalk(self._key)
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0
 
@@ -94,7 +98,7 @@ class SparsePolish:
 
     def reset(self) -> None:
         """Start a solve: forget the guesses tried; collective."""
-        self._tried.clear()
+        self._walk.clear()
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0
 
@@ -134,14 +138,8 @@ class SparsePolish:
         gap = c.gap
         finite = np.isfinite(gap)
         active = guess & finite
-        outcome = None
-        tried_any = False
-        for _ in range(MAX_SPARSE_ROUNDS):
-            key = self._key(active)
-            if key in self._tried:
-                break
-            self._tried.add(key)
-            tried_any = True
+
+        def step(active):
             nu, lam = self._equality_solution(active)
             self.rounds += 1
             lam_tol = SIGN_TOL * self.problem.global_norm(lam, np.inf)
@@ -153,10 +151,11 @@ class SparsePolish:
             join = ~active & finite & (nu > gap + SIGN_TOL * scale)
             changes = self.comm.allreduce(int(leave.sum() + join.sum()), op=MPI.SUM)
             if changes == 0:
-                outcome = (np.minimum(nu, gap), np.where(active, np.maximum(lam, 0.0), 0.0))
-                break
-            active = (active & ~leave) | join
-        self.attempts += int(tried_any)
+                return (np.minimum(nu, gap), np.where(active, np.maximum(lam, 0.0), 0.0)), None
+            return None, (active & ~leave) | join
+
+        outcome, rounds = self._walk.walk(active, step, self.max_rounds)
+        self.attempts += int(rounds > 0)
         self.time += time.perf_counter() - t0
         return outcome
 
