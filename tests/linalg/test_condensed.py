@@ -148,3 +148,34 @@ def test_large_contact_sets_fall_back_to_the_iterative_method(monkeypatch):
     monkeypatch.setattr(condensed, "MAX_CONDENSED_CONTACT_NODES", 32)
     with ADMMSolver(problem) as solver:
         assert solver.penalty_estimate.details["method"] == "dense"
+
+
+@serial_only
+@pytest.mark.parametrize(
+    ("threshold", "given", "expected"), [(None, None, 0), (1, None, 5), (1, 0, 0)]
+)
+def test_the_ordering_is_metis_on_large_meshes_unless_given(
+    monkeypatch, threshold, given, expected
+):
+    """MUMPS runs the ordering asked for (INFOG(7)), and the solves stay exact under it."""
+    import admm_dolfinx.linalg.condensed as condensed
+
+    if threshold is not None:
+        monkeypatch.setattr(condensed, "CONDENSED_METIS_DOFS", threshold)
+    problem = example1(h=1 / 16).problem()
+    options = None if given is None else {"mat_mumps_icntl_7": given}
+    operator = CondensedOperator(problem, "test_ordering_", options)
+    reference = PenalisedOperator(problem, "test_ordering_ref_")
+    b, x, y = problem.create_vector(), problem.create_vector(), problem.create_vector()
+    try:
+        operator.set_penalty(10.0)
+        reference.set_penalty(10.0)
+        factor = operator.ksp.getPC().getFactorMatrix()
+        assert factor.getMumpsInfog(7) == expected
+        b.setRandom()
+        operator.solve(b, x)
+        reference.solve(b, y)
+        assert _rel(x, y) <= 1e-10
+    finally:
+        for obj in (operator, reference, b, x, y):
+            obj.destroy()

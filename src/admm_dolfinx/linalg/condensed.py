@@ -15,12 +15,12 @@ complement S_C + r K_CC, so
 * the r* estimate reads the whole contact pencil off S_C densely (exact, see
   :func:`admm_dolfinx.penalty.dense.extremes_from_schur`).
 
-Keeping C to the end constrains MUMPS's ordering (it runs AMD where A + rK gets AMF
-in 2D), which makes this factorisation, and somewhat its substitutions, dearer than
-those of A + rK in 2D, where C is a curve of O(n^½) dofs (``python
-benchmarks/penalty_cost.py`` prints both factorisations and what the condensed path
-adds to a solve). In 3D C is a surface of O(n^⅔) dofs, whose
-dense front of c³/3 flops dominates the factorisation, so
+Keeping C to the end constrains MUMPS's ordering (AMD, or METIS on large meshes:
+:func:`condensed_ordering`, where A + rK gets AMF in 2D), which makes this
+factorisation, and somewhat its substitutions, dearer than those of A + rK in 2D,
+where C is a curve of O(n^½) dofs (``python benchmarks/penalty_cost.py`` prints both
+factorisations and what the condensed path adds to a solve). In 3D C is a surface
+of O(n^⅔) dofs, whose dense front of c³/3 flops dominates the factorisation, so
 :func:`admm_dolfinx.penalty.estimate.estimate_penalty` and the solver use it in 2D only.
 
 PETSc computes the Schur complement in parallel (all of C on rank 0), but solves with
@@ -61,11 +61,13 @@ from admm_dolfinx.linalg.petsc import (
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = [
+    "CONDENSED_METIS_DOFS",
     "DENSE_COST_RATIO",
     "MAX_CONDENSED_CONTACT_NODES",
     "CondensedOperator",
     "ContactSupport",
     "condensed_factor_applies",
+    "condensed_ordering",
 ]
 
 
@@ -82,6 +84,23 @@ MAX_CONDENSED_CONTACT_NODES = 4000
 #: thousands of contact nodes on the sparse side (sparse polishing,
 #: :mod:`admm_dolfinx.admm.polish_sparse`).
 DENSE_COST_RATIO = 300.0
+#: MUMPS orders a factorisation with a Schur complement by AMD (AMF, the 2D ordering
+#: of A + rK, is not available to it); from this many dofs on METIS is asked for
+#: instead, whose fill grows more slowly: ``python benchmarks/scale_2d.py`` times the
+#: condensed factorisation under both orderings at every size.
+CONDENSED_METIS_DOFS = 500_000
+
+
+def condensed_ordering(problem: ContactProblem, options: Mapping[str, Any] | None) -> dict:
+    """MUMPS's ordering (``mat_mumps_icntl_7``) of the condensed factorisation.
+
+    The caller's choice if ``options`` has one, else AMD (0) below
+    :data:`CONDENSED_METIS_DOFS` dofs and METIS (5) from there on.
+    """
+    if options and "mat_mumps_icntl_7" in options:
+        return {"mat_mumps_icntl_7": options["mat_mumps_icntl_7"]}
+    n = problem.V.dofmap.index_map.size_global * problem.V.dofmap.index_map_bs
+    return {"mat_mumps_icntl_7": 5 if n >= CONDENSED_METIS_DOFS else 0}
 
 
 def condensed_factor_applies(
@@ -179,6 +198,8 @@ class CondensedOperator(FactorisedOperator):
         petsc_options: Mapping[str, Any] | None = None,
     ):
         options = factor_options(petsc_options, problem.gdim)
+        if options.get("pc_factor_mat_solver_type") == "mumps":
+            options.update(condensed_ordering(problem, petsc_options))
         if not is_factorisation(options):
             raise ValueError(
                 "The condensed factorisation needs a MUMPS factorisation (ksp_type "
