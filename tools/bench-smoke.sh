@@ -30,5 +30,6 @@ run "$py" benchmarks/penalty_accuracy.py
 run "$py" benchmarks/strips.py --quick
 run "$py" benchmarks/contact_model.py --quick
 run "$py" benchmarks/scale_3d.py --quick
+run "$py" benchmarks/scale_2d.py --quick
 for b in "${parallel_smoke[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done
 echo "benchmarks: all ran"

@@ -60,6 +60,52 @@ def test_the_multigrid_sees_the_rigid_body_modes_and_is_set_up_once_per_r():
         assert warm.step1.krylov_iterations < first.step1.krylov_iterations
 
 
+def test_one_multigrid_hierarchy_serves_r_star_and_step_1():
+    """r*'s λ_max preconditions with step 1's multigrid, built on A once: no hierarchy of
+    its own, and a new r recomputes only the Galerkin coarse operators (no new
+    aggregates), at the Krylov iteration counts of a hierarchy built afresh on A + rK."""
+    problem = example3(level=1).problem()
+    PETSc.Log.begin()
+    aggregation = PETSc.Log.Event("MatCreateGraph")  # aggregates: a hierarchy built
+    galerkin = PETSc.Log.Event("PCGAMG Gal l00")  # the fine Galerkin product
+    aggregated, products = aggregation.getPerfInfo()["count"], galerkin.getPerfInfo()["count"]
+    with ADMMSolver(problem, step1="iterative") as solver:
+        assert solver.penalty_estimate.details["lambda_max_method"] == "multigrid"
+        levels = aggregation.getPerfInfo()["count"] - aggregated
+        # one hierarchy in all: one graph per coarsening of step 1's multigrid
+        assert levels == solver.ksp.getPC().getMGLevels() - 1 >= 1
+        # built on A, then the coarse operators of A + rK: two products, one hierarchy
+        assert galerkin.getPerfInfo()["count"] - products == 2
+        shared = solver.solve()
+        solver.set_penalty(2.0 * solver.penalty)
+        assert aggregation.getPerfInfo()["count"] - aggregated == levels  # none rebuilt
+        fresh_operator = solver.operator.matrix
+        b = problem.create_vector()
+        problem.assemble_rhs(0.0, b)
+        counts = []
+        for reuse in (True, False):
+            ksp = PETSc.KSP().create(problem.comm)
+            ksp.setOperators(fresh_operator)
+            if reuse:
+                ksp.setPC(solver.ksp.getPC())
+            else:
+                ksp.getPC().setType("gamg")
+            ksp.setType("cg")
+            ksp.setTolerances(rtol=1e-8)
+            x = b.duplicate()
+            x.set(0.0)
+            ksp.solve(b, x)
+            counts.append(ksp.getIterationNumber())
+            ksp.destroy()
+            x.destroy()
+        b.destroy()
+        assert counts[0] <= counts[1] + 2  # the kept hierarchy is as good as a new one
+    with ADMMSolver(problem, step1="factorised", rtol=1e-10) as direct:
+        exact = direct.solve()
+    assert shared.converged
+    assert _rel(shared.u.x.petsc_vec, exact.u.x.petsc_vec) <= 1e-5
+
+
 def test_a_fixed_inner_tolerance_stalls_and_says_so():
     """The reason for the rule: at a fixed ksp_rtol 1e-6 the outer residual stalls at
     the inner error; the error names the fix."""

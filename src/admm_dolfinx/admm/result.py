@@ -39,7 +39,8 @@ class Timings:
         penalty: r* (and the surface metric's β and μ_max; a private condensed
             factorisation for it included).
         operator: Forming A + rK (and the dense compliance when polishing densely).
-        factorization: Factorising step 1's operator.
+        factorization: Factorising step 1's operator (an iterative one: setting its
+            preconditioner up, the multigrid hierarchy included).
         iterations: The ADMM loop (polishing included).
         kkt: The final KKT check.
         total: All of the above.

@@ -207,6 +207,15 @@ class ADMMSolver:
                 self.polisher = SparsePolish(problem, prefixes["polish"], plan.factor_options)
             self._time_schur = private.timings["factorization"] if private else 0.0
             penalty = s.penalty  # a number unless "auto" (then r* or the surface r below)
+            multigrid = None
+            if plan.penalty == "local" and isinstance(self.operator, IterativeOperator):
+                # step 1's hierarchy, built on A now, preconditions r*'s λ_max too
+                multigrid = self.operator.set_up_hierarchy()
+                logger.info(
+                    "step 1: multigrid hierarchy set up on A in %.3g s%s",
+                    self.operator.timings["hierarchy"],
+                    " (r*'s λ_max preconditions with it)" if multigrid is not None else "",
+                )
             if plan.penalty != "given":
                 # a condensed operator gives r* densely and serves the ADMM at r*; a
                 # factorised one shares its symbolic analysis with r*'s factorisations
@@ -220,6 +229,7 @@ class ADMMSolver:
                     operator=shared,
                     petsc_options=plan.factor_options,
                     petsc_options_prefix=prefixes["penalty"],
+                    multigrid=multigrid,
                 )
                 penalty = self.penalty_estimate.r
             if plan.metric == "surface":
@@ -633,7 +643,8 @@ class ADMMSolver:
             "penalty": penalty_time,
             "operator": self.operator.timings["operator"]
             + (polisher.setup_time if polisher is not None else 0.0),
-            "factorization": self.operator.timings["factorization"],
+            "factorization": self.operator.timings["factorization"]
+            + self.operator.timings.get("hierarchy", 0.0),
             "iterations": t_iter,
             "kkt": t_kkt,
         }

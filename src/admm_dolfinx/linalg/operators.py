@@ -54,7 +54,10 @@ class PenalisedOperator(FactorisedOperator):
     Attributes:
         penalty: Current r (NaN before the first :meth:`set_penalty`).
         solves: Number of :meth:`solve` calls so far.
-        timings: Seconds of the last ``operator`` build and ``factorization``.
+        timings: Seconds of the last ``operator`` build and ``factorization`` (of the
+            iterative operator: the preconditioner's set-up), and of the multigrid
+            ``hierarchy`` built on A (:meth:`IterativeOperator.set_up_hierarchy`; 0 if
+            none was).
     """
 
     def __init__(
@@ -73,7 +76,7 @@ class PenalisedOperator(FactorisedOperator):
         self.solves = 0
         #: Seconds spent in :meth:`solve` so far.
         self.solve_time = 0.0
-        self.timings: dict[str, float] = {"operator": 0.0, "factorization": 0.0}
+        self.timings: dict[str, float] = {"operator": 0.0, "factorization": 0.0, "hierarchy": 0.0}
         self._label = "A + r NᵀMN"
         self._penalty_matrix: PETSc.Mat | None = None
         self._penalty_name = "NᵀMN"
@@ -209,6 +212,28 @@ class IterativeOperator(PenalisedOperator):
         self.last_iterations = 0
         self.unconverged = 0
         self.rtol = 1e-8
+
+    def set_up_hierarchy(self) -> PETSc.PC | None:
+        """Set the preconditioner up on A itself, before r is known; collective.
+
+        The multigrid hierarchy (aggregates, smoothed interpolation) is the dear part
+        of the set-up, and r changes little of it: built on A (r = 0) and kept by
+        every later :meth:`set_penalty` (``pc_gamg_reuse_interpolation``, in
+        :data:`~admm_dolfinx.linalg.petsc.ITERATIVE_OPTIONS`), which recomputes only
+        the Galerkin coarse operators of A + rK. Meanwhile the r* estimate
+        preconditions its λ_max eigensolve with it, instead of building a hierarchy
+        of its own (``python benchmarks/scale_3d.py`` times both set-ups).
+
+        Returns:
+            The preconditioner (this operator's; valid until its next
+            :meth:`set_penalty`), or None if the options chose no multigrid.
+        """
+        t0 = time.perf_counter()
+        self.set_penalty(0.0)
+        self.timings["hierarchy"] = time.perf_counter() - t0
+        self.timings["factorization"] = 0.0
+        pc = self._factorisation().getPC()
+        return pc if pc.getType() == PETSc.PC.Type.GAMG else None
 
     def set_tolerance(self, rtol: float) -> None:
         """Relative residual tolerance of the next solves."""

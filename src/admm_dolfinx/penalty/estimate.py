@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 from dolfinx.common import Timer
+from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
@@ -119,6 +120,7 @@ def estimate_penalty(
     operator: PenalisedOperator | CondensedOperator | None = None,
     petsc_options: dict | None = None,
     petsc_options_prefix: str | None = None,
+    multigrid: PETSc.PC | None = None,
 ) -> PenaltyEstimate:
     """Compute r* = 1/sqrt(λ_min λ_max) with SLEPc on the contact dofs; collective.
 
@@ -138,6 +140,9 @@ def estimate_penalty(
         petsc_options: Options of the factorisations (MUMPS Cholesky by default).
         petsc_options_prefix: Prefix (default ``"penalty_"``); sub-objects get
             ``schur_``, ``dense_``, ``layer_``, ``lmin_``, ``lmax_``, ``amg_``.
+        multigrid: A multigrid preconditioner of A set up already (the iterative
+            step 1's, :meth:`~admm_dolfinx.linalg.operators.IterativeOperator.set_up_hierarchy`)
+            for the local method's λ_max, borrowed; it builds its own otherwise.
 
     Returns:
         The estimate.
@@ -168,7 +173,7 @@ def estimate_penalty(
     if isinstance(operator, CondensedOperator):
         operator = None
     lambda_min, lambda_max, details = _iterative_extremes(
-        problem, method, tol, max_it, operator, prefix, petsc_options
+        problem, method, tol, max_it, operator, prefix, petsc_options, multigrid
     )
     return _finish(lambda_min, lambda_max, details, t_start)
 
@@ -181,6 +186,7 @@ def _iterative_extremes(
     operator: PenalisedOperator | None,
     prefix: str,
     petsc_options: dict | None,
+    multigrid: PETSc.PC | None = None,
 ) -> tuple[float, float, dict[str, Any]]:
     """λ_min, λ_max and details by the ``"local"`` or ``"factorised"`` method; collective.
 
@@ -215,7 +221,9 @@ def _iterative_extremes(
             info = {}
             if method == "local":
                 try:
-                    lambda_max, info = lambda_max_multigrid(space, lambda_min, tol, max_it, prefix)
+                    lambda_max, info = lambda_max_multigrid(
+                        space, lambda_min, tol, max_it, prefix, multigrid
+                    )
                 except NeedsFactorisation as reason:
                     logger.info("λ_max by factorisation instead of multigrid: %s", reason)
             if not info:

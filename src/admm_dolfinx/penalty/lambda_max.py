@@ -260,7 +260,9 @@ def _ritz_start(K, B, multigrid, loads, prefix) -> tuple[list[PETSc.Vec], int]:
         ksp.setOptionsPrefix(prefix + "start_")
         ksp.setType(PETSc.KSP.Type.CG)
         ksp.setOperators(B)
-        ksp.setPC(multigrid)
+        # the multigrid keeps its own operator (it may be step 1's, set up on A)
+        ksp.getPC().setType(PETSc.PC.Type.PYTHON)
+        ksp.getPC().setPythonContext(_ColumnByColumn(multigrid))
         ksp.setNormType(PETSc.KSP.NormType.NONE)  # a fixed number of steps
         ksp.setTolerances(max_it=START_CG_STEPS)
         ksp.setFromOptions()
@@ -305,6 +307,7 @@ def largest_generalized_eigenpair(
     trial_loads: list[PETSc.Vec] | None = None,
     deflation: list[PETSc.Vec] | None = None,
     info: dict[str, float] | None = None,
+    multigrid: PETSc.PC | None = None,
 ) -> tuple[float, PETSc.Vec, int]:
     """Largest θ with K x = θ B x, by LOBPCG preconditioned with AMG on B; collective.
 
@@ -323,6 +326,10 @@ def largest_generalized_eigenpair(
         deflation: Vectors whose B-orthogonal complement is searched.
         info: If given, the multigrid setup time (``"multigrid_setup"``, seconds) and
             the V-cycles spent on the start (``"start_cycles"``) are added to it.
+        multigrid: A preconditioner set up already that approximates B⁻¹ up to a
+            scalar factor (the iterative step 1's, on A; LOBPCG and the start's CG
+            are invariant under that factor); borrowed, not destroyed. Built here on
+            B otherwise.
 
     Returns:
         θ, the eigenvector (caller destroys it) and the iteration count.
@@ -331,7 +338,7 @@ def largest_generalized_eigenpair(
         RuntimeError: If LOBPCG does not converge within ``max_it`` iterations.
     """
     eps = SLEPc.EPS().create(comm=B.getComm())
-    multigrid = None
+    own = None
     start: list[PETSc.Vec] = []
     try:
         eps.setOperators(K, B)
@@ -344,17 +351,18 @@ def largest_generalized_eigenpair(
         st = eps.getST()
         st.setType(SLEPc.ST.Type.PRECOND)
         st.setPreconditionerMat(B)  # precondition with B, not with K − σB
-        multigrid = PETSc.PC().create(comm=B.getComm())
-        multigrid.setOperators(B)
-        multigrid.setType(PETSc.PC.Type.GAMG)
-        apply_options(multigrid, prefix + "amg_", {})
+        t0 = time.perf_counter()
+        if multigrid is None:
+            multigrid = own = PETSc.PC().create(comm=B.getComm())
+            own.setOperators(B)
+            own.setType(PETSc.PC.Type.GAMG)
+            apply_options(own, prefix + "amg_", {})
+            own.setUp()
+        setup_time = time.perf_counter() - t0
         ksp = st.getKSP()
         ksp.setType(PETSc.KSP.Type.PREONLY)
         ksp.getPC().setType(PETSc.PC.Type.PYTHON)
         ksp.getPC().setPythonContext(_ColumnByColumn(multigrid))
-        t0 = time.perf_counter()
-        multigrid.setUp()
-        setup_time = time.perf_counter() - t0
         cycles = 0
         if trial_loads:
             start, cycles = _ritz_start(K, B, multigrid, trial_loads, prefix)
@@ -373,19 +381,27 @@ def largest_generalized_eigenpair(
         for v in start:
             v.destroy()
         eps.destroy()
-        if multigrid is not None:
-            multigrid.destroy()
+        if own is not None:
+            own.destroy()
 
 
 def lambda_max_multigrid(
-    space: ContactSpace, lambda_min: float, tol: float, max_it: int, prefix: str
+    space: ContactSpace,
+    lambda_min: float,
+    tol: float,
+    max_it: int,
+    prefix: str,
+    multigrid: PETSc.PC | None = None,
 ) -> tuple[float, dict[str, Any]]:
     """λ_max from LOBPCG + AMG on the full-space pencil K x = θ (A + r_a K) x; collective.
 
     No factorisation: each iteration costs one AMG V-cycle per block vector. The
     residual tolerance is tol/2. The multigrid aggregates depend on the partition,
     so r* does too, at the level of the eigenvalue error. The eigensolver reads
-    options under ``{prefix}lmax_`` (its multigrid ``{prefix}lmax_amg_``).
+    options under ``{prefix}lmax_`` (its own multigrid ``{prefix}lmax_amg_``).
+    ``multigrid``: a multigrid of A set up already (the iterative step 1's, borrowed),
+    to precondition with instead of building one on A + r_a K (r_a λ_max ≤
+    :data:`_MAX_RA_LAMBDA` keeps the two spectrally equivalent).
 
     Raises:
         NeedsFactorisation: For a floating body (A is singular) or if LOBPCG did not
@@ -429,6 +445,7 @@ def lambda_max_multigrid(
             prefix=prefix + "lmax_",
             trial_loads=loads,
             info=counts,
+            multigrid=multigrid,
         )
         iterations += its
         return theta * k_scale / b_scale, vec, its
