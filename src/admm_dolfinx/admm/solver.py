@@ -66,6 +66,7 @@ the callback, which says so (``status="callback"``, ``converged=False``).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -119,6 +120,15 @@ PROGRESS_SECONDS = 10.0
 #: change neither r, nor the factorisation, nor the plan.
 ITERATION_SETTINGS = ("rtol", "kkt_tol", "max_iter", "alpha", "anderson", "stopping")
 _HISTORY = ("du", "dp", "fpr", "feasibility", "complementarity", "equilibrium", "active")
+
+
+def _final_residual(result: ADMMResult) -> float | None:
+    """The scaled fixed-point residual a result ended at (None if it recorded none)."""
+    fpr = result.history.get("fpr") if isinstance(result.history, dict) else None
+    if not fpr:
+        return None
+    value = float(fpr[-1])
+    return value if math.isfinite(value) else None
 
 
 class ADMMSolver:
@@ -447,6 +457,10 @@ class ADMMSolver:
             z = np.concatenate([np.minimum(0.0, g), np.zeros(m)])  # state (p, λ)
         else:
             z = self._warm_state(warm_start, x_old)
+            if inexact is not None:
+                # the state is as good as the end of that solve: so is the first inner
+                # solve (a loose first tolerance would throw the warm start away)
+                last_residual = _final_residual(warm_start)
         if polisher is not None:
             polisher.reset()
         p_prev, lam = z[:m].copy(), z[m:]
