@@ -28,7 +28,7 @@ from mpi4py import MPI
 from admm_dolfinx.admm.settings import ADMMSettings
 from admm_dolfinx.linalg.condensed import condensed_factor_applies
 from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
-from admm_dolfinx.linalg.petsc import ITERATIVE_OPTIONS, is_factorisation
+from admm_dolfinx.linalg.petsc import is_factorisation, iterative_options
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["FACTOR_FLOPS_LIMIT", "MEMORY_FRACTION", "SolverPlan", "make_plan"]
@@ -94,7 +94,7 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     iterative, why = _iterative_step1(problem, settings, options)
     reasons.append(why)
     if iterative:
-        options = {**ITERATIVE_OPTIONS, **options}
+        options = iterative_options(options)
     factor = is_factorisation(options)
     explicit = settings.condensed is True or settings.polish is True
     schur_possible = condensed_factor_applies(problem, options, any_dimension=explicit)

@@ -218,8 +218,8 @@ class IterativeOperator(PenalisedOperator):
 
         The multigrid hierarchy (aggregates, smoothed interpolation) is the dear part
         of the set-up, and r changes little of it: built on A (r = 0) and kept by
-        every later :meth:`set_penalty` (``pc_gamg_reuse_interpolation``, in
-        :data:`~admm_dolfinx.linalg.petsc.ITERATIVE_OPTIONS`), which recomputes only
+        every later :meth:`set_penalty` (``pc_gamg_reuse_interpolation``,
+        :data:`~admm_dolfinx.linalg.petsc.GAMG_KEEP_HIERARCHY`), which recomputes only
         the Galerkin coarse operators of A + rK. Meanwhile the r* estimate
         preconditions its λ_max eigensolve with it, instead of building a hierarchy
         of its own (``python benchmarks/scale_3d.py`` times both set-ups).

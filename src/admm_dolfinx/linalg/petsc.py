@@ -17,6 +17,7 @@ from petsc4py import PETSc
 
 __all__ = [
     "DEFAULT_FACTOR_OPTIONS",
+    "GAMG_KEEP_HIERARCHY",
     "ITERATIVE_OPTIONS",
     "PetscOwner",
     "apply_options",
@@ -26,6 +27,7 @@ __all__ = [
     "factor_options",
     "factorization_count",
     "is_factorisation",
+    "iterative_options",
     "mean_diagonal",
     "prefixed_options",
     "prepare_eigensolve",
@@ -42,14 +44,27 @@ DEFAULT_FACTOR_OPTIONS: dict[str, Any] = {
 }
 
 #: An iterative step 1: conjugate gradients preconditioned by smoothed-aggregation
-#: multigrid (the rigid body modes are A's near null space, set by the problem). The
+#: multigrid (the rigid body modes are A's near null space, set by the problem).
+ITERATIVE_OPTIONS: dict[str, Any] = {"ksp_type": "cg", "pc_type": "gamg"}
+
+#: Added to an iterative step 1's options when its preconditioner is GAMG: the
 #: hierarchy (aggregates, smoothed interpolation) is built once and kept when the
-#: values change (a new r): only the Galerkin coarse operators are recomputed.
-ITERATIVE_OPTIONS: dict[str, Any] = {
-    "ksp_type": "cg",
-    "pc_type": "gamg",
-    "pc_gamg_reuse_interpolation": True,
-}
+#: values change (a new r); only the Galerkin coarse operators are recomputed.
+GAMG_KEEP_HIERARCHY: dict[str, Any] = {"pc_gamg_reuse_interpolation": True}
+
+
+def iterative_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The options of an iterative step 1: the defaults, then ``options``.
+
+    :data:`GAMG_KEEP_HIERARCHY` joins them where the preconditioner is GAMG (PETSc
+    refuses an option that no object reads, so not otherwise), unless ``options``
+    decide it themselves.
+    """
+    merged = {**ITERATIVE_OPTIONS, **dict(options or {})}
+    if merged.get("pc_type") == "gamg":
+        merged = {**GAMG_KEEP_HIERARCHY, **merged}
+    return merged
+
 
 #: MUMPS ordering in 2D: approximate minimum fill (AMF), faster to factorise than
 #: MUMPS's own choice (METIS) on every 2D mesh of ``python benchmarks/orderings.py``,
