@@ -13,6 +13,13 @@ r = 1/sqrt(μ_min μ_max), and the iterations to relative errors 1e-6 / 1e-8 in 
 the paper's metric (α = 1.6, Anderson 5 at r*), of the surface metric (the default)
 and of the surface metric at the best r.
 
+``--part calibrate`` (serial, 5 min): the constants b and m of the rule β = b κ/k²_max,
+r = 1/sqrt(m λ_max μ_max) (``admm_dolfinx.penalty.surface``), over a grid of (b, m):
+the ADMM iterations of the default solve (its stopping test, rtol 1e-6) on Example 3
+levels 1-2, hexahedral meshes of its block (12 and 16 cells across), two strongly
+graded tetrahedral meshes (element sizes 0.06 → 0.6 and 0.04 → 0.8 from Γ_C to the
+top, level 1) and the three variants at level 1; sums and maxima per column.
+
 ``--part select`` (serial, 1 min): over-relaxation α and Anderson memory for the
 surface metric, iterations to 1e-6 / 1e-8 summed over Example 3 levels 1-2 and the
 slab and clamped variants at level 1 (the defaults α = 1.6, memory 5 were chosen for
@@ -27,9 +34,10 @@ run gives *contact / plain*. Then the default's growth per halving of h.
 
 The reference is ``benchmarks/acceleration.py``'s (SNES VI from a tight ADMM solve).
 
-    python benchmarks/surface_metric.py                 # both parts (about 25 min)
+    python benchmarks/surface_metric.py                 # all but select (about 30 min)
     python benchmarks/surface_metric.py --part rule     # 3 min
     python benchmarks/surface_metric.py --part select
+    python benchmarks/surface_metric.py --part calibrate
     python benchmarks/surface_metric.py --part speed --only "level 3"
     python benchmarks/surface_metric.py --quick         # levels 0-1, Example 3 only
 
@@ -52,7 +60,7 @@ from admm_dolfinx import ADMMSolver, Ball, Plane
 from admm_dolfinx.admm.solver import ADMMConvergenceError
 from admm_dolfinx.linalg.operators import PenalisedOperator
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
-from admm_dolfinx.scenes.library import Scene, example3, pressed_block
+from admm_dolfinx.scenes.library import Scene, example3, example3_hexahedral, pressed_block
 
 #: The paper's contact model (along the body's normal): the README's tables of this
 #: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.
@@ -264,9 +272,70 @@ def growth(rows):
     return out
 
 
+#: (b, m) of β = b κ/k²_max and μ_min ≈ m λ_max (admm_dolfinx.penalty.surface); the
+#: first is the plain ADMM's choice, the default is among them.
+CALIBRATION_GRID = [(1.0, 0.5), (0.5, 0.5), (0.5, 0.25), (0.5, 0.125), (0.25, 0.25)]
+CALIBRATION_GRID += [(0.25, 0.125), (0.25, 0.0625), (0.125, 0.0625)]
+
+
+def calibration_meshes(quick: bool):
+    """Example 3, its variants, hexahedral and strongly graded meshes (name, builder)."""
+    meshes = [
+        ("example3 level 1", lambda: example3(level=1)),
+        ("hexahedral 12", lambda: example3_hexahedral(cells=12)),
+        ("graded 0.06/0.6 level 1", lambda: example3(level=1, h_bottom=0.06, h_top=0.6)),
+    ]
+    if not quick:
+        meshes += [
+            ("example3 level 2", lambda: example3(level=2)),
+            ("hexahedral 16", lambda: example3_hexahedral(cells=16)),
+            ("graded 0.04/0.8 level 1", lambda: example3(level=1, h_bottom=0.04, h_top=0.8)),
+        ]
+        meshes += [
+            (f"{kind} level 1", lambda kind=kind: block_variant(kind, 1))
+            for kind in ("slab", "clamped", "punch")
+        ]
+    return meshes
+
+
+def calibration_rows(quick: bool) -> list[dict]:
+    """ADMM iterations (the default solve: stopping test at rtol 1e-6) for each (b, m)."""
+    import admm_dolfinx.penalty.surface as surface
+
+    saved = surface.BETA_FRACTION, surface.MU_MIN_FRACTION
+    grid = [*CALIBRATION_GRID[:2], saved] if quick else CALIBRATION_GRID
+    rows = []
+    try:
+        for name, build in calibration_meshes(quick):
+            problem = build().problem()
+            row = {"mesh": name, "dofs": problem.V.dofmap.index_map.size_global * 3}
+            for b, m in grid:
+                surface.BETA_FRACTION, surface.MU_MIN_FRACTION = b, m
+                with ADMMSolver(problem) as solver:
+                    result = solver.solve()
+                mark = " (default)" if (b, m) == saved else ""
+                row[f"b={b:g} m={m:g}{mark}"] = result.iterations if result.converged else "–"
+            rows.append(row)
+            say(row)
+    finally:
+        surface.BETA_FRACTION, surface.MU_MIN_FRACTION = saved
+    total = {"mesh": "sum"}
+    for key in rows[0]:
+        if key.startswith("b="):
+            values = [row[key] for row in rows]
+            total[key] = sum(values) if all(isinstance(v, int) for v in values) else "–"
+    worst = {"mesh": "max"}
+    for key in total:
+        if key.startswith("b=") and total[key] != "–":
+            worst[key] = max(row[key] for row in rows)
+    return [*rows, total, worst]
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--part", choices=["rule", "select", "speed", "both"], default="both")
+    parser.add_argument(
+        "--part", choices=["rule", "select", "calibrate", "speed", "both"], default="both"
+    )
     parser.add_argument("--quick", action="store_true", help="levels 0-1 of Example 3 only")
     parser.add_argument("--only", default=None, help="speed meshes whose name contains this")
     parser.add_argument("--out", default="out_benchmarks")
@@ -285,6 +354,11 @@ def main():
         if COMM.rank == 0:
             print("\nrule: iterations to 1e-6 / 1e-8 in u\n")
             print_and_save(rows, out / "surface_metric_rule.csv")
+    if args.part in ("calibrate", "both") and COMM.size == 1:
+        rows = calibration_rows(args.quick)
+        if COMM.rank == 0:
+            print("\ncalibrate: ADMM iterations of the default solve for each (b, m)\n")
+            print_and_save(rows, out / "surface_metric_calibrate.csv")
     if args.part == "select" and COMM.size == 1:
         table = select_grid()
         if COMM.rank == 0:

@@ -1,30 +1,38 @@
 """β and r for the surface metric R = r (M + β L_Γ) (:mod:`admm_dolfinx.linalg.surface_metric`).
 
 The paper's rule r* = 1/sqrt(λ_min λ_max) applies to any metric: with μ_min, μ_max
-the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r is
-1/sqrt(μ_min μ_max). The choice here starts from the paper's pencil (NᵀMN, A), whose
-λ_min and λ_max :func:`~admm_dolfinx.penalty.estimate.estimate_penalty` computes anyway:
+the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r of the plain
+ADMM is 1/sqrt(μ_min μ_max). The choice here starts from the paper's pencil (NᵀMN, A),
+whose λ_min and λ_max :func:`~admm_dolfinx.penalty.estimate.estimate_penalty` computes
+anyway:
 
-* **β = κ / k²_max**, κ = λ_max/λ_min, k²_max the largest eigenvalue of
-  L_Γ x = k² M x (the roughest nodal pattern Γ_C carries). The roughest contact
-  mode, of compliance λ_min, then weighs λ_min (1 + κ) = λ_min + λ_max, while the
-  smoothest, whose surface gradient is small, keeps λ_max: the two ends of the
-  paper's spectrum are brought together.
-* **μ_min ≈ λ_max / 2.** The uniform and other smooth contact modes have almost no
-  surface-gradient energy, so their μ is their λ: they cap μ_min at about λ_max.
-  The minimum itself lies a little below, at a mode of intermediate wavelength,
-  where neither term dominates; it is a global mode, as dear to compute as λ_max.
-  :data:`MU_MIN_FRACTION` = ½ is within a factor 2 of the measured ratio on the
-  meshes of ``python benchmarks/surface_metric.py --part rule`` (Example 3 and three
-  variants), and r within √2.
+* **β = b κ / k²_max**, κ = λ_max/λ_min, k²_max the largest eigenvalue of
+  L_Γ x = k² M x (the roughest nodal pattern Γ_C carries), b = :data:`BETA_FRACTION`.
+  With b = 1 the roughest contact mode, of compliance λ_min, would weigh
+  λ_min (1 + κ) = λ_min + λ_max, while the smoothest, whose surface gradient is small,
+  keeps λ_max: the two ends of the paper's spectrum brought together.
+* **μ_min ≈ m λ_max**, m = :data:`MU_MIN_FRACTION`. The uniform and other smooth
+  contact modes have almost no surface-gradient energy, so their μ is their λ: they
+  cap μ_min at about λ_max; the minimum lies below, at a mode of intermediate
+  wavelength, a global mode as dear to compute as λ_max.
 * **μ_max** belongs to a short-wave mode at the edge of Γ_C, so it is computed like
   λ_min in :mod:`admm_dolfinx.penalty.lambda_min`, on a layer of cells along Γ_C with
   the rest of the body held fixed (stiffer than the body, so a lower bound, which
   grows to μ_max with the layer): two rings (:data:`LAYER_RINGS`). SLEPc solves the
   layer's generalised problem Nᵀ(M + βL_Γ)N x = μ A_L x with a factorisation of A_L.
-* **r = 1 / sqrt(½ λ_max μ_max)**, close to the best 1/sqrt(μ_min μ_max) on those
-  meshes, where ADMM needs at most two iterations more than at the best r (``python
-  benchmarks/surface_metric.py --part rule`` prints both).
+  Since M + βL_Γ ⪰ M, μ_max ≥ λ_max too, and the larger of the two bounds is taken:
+  at small β the top of the μ spectrum may be a smooth mode, which a layer sees only
+  in part.
+* **r = 1 / sqrt(m λ_max μ_max).**
+
+b and m are calibrated on the iteration the solver runs (over-relaxed, with Anderson
+acceleration), not on the plain ADMM's rate: with b = 1, m = ½ (the plain rate's
+choice) the iteration counts grew on hexahedral and strongly graded meshes, where the
+accelerated iteration's best r lay well above 1/sqrt(μ_min μ_max) and a smaller β
+helped. ``python benchmarks/surface_metric.py --part calibrate`` counts the iterations
+over a grid of (b, r) on Example 3, its variants, hexahedral and graded meshes (the
+counts of b = 1, m = ½ included); ``--part rule`` compares r with the plain optimum
+on the dense pencil.
 """
 
 from __future__ import annotations
@@ -61,8 +69,10 @@ logger = get_logger(__name__)
 #: --part rule`` two rings give nearly the whole body's μ_max (the table prints the
 #: ratio); four rings cost more.
 LAYER_RINGS = 2
-#: μ_min / λ_max assumed for r (see the module docstring).
-MU_MIN_FRACTION = 0.5
+#: b of β = b κ / k²_max (see the module docstring).
+BETA_FRACTION = 0.25
+#: m of μ_min ≈ m λ_max, for r (see the module docstring).
+MU_MIN_FRACTION = 0.125
 #: Eigenvalue tolerance of each layer solve.
 EIGEN_TOL = 1e-3
 
@@ -72,8 +82,8 @@ class SurfacePenalty:
     """β, r and what they came from.
 
     Attributes:
-        r: The penalty r = 1/sqrt(½ λ_max μ_max).
-        beta: β = κ/k²_max.
+        r: The penalty r = 1/sqrt(m λ_max μ_max) (m = :data:`MU_MIN_FRACTION`).
+        beta: β = b κ/k²_max (b = :data:`BETA_FRACTION`).
         mu_max: Largest eigenvalue of (Nᵀ(M + βL_Γ)N, A).
         k_max_squared: Largest eigenvalue of L_Γ x = k² M x.
         estimate: The paper's pencil's estimate (λ_min, λ_max) that β and r use.
@@ -144,12 +154,16 @@ def estimate_surface_penalty(
             details={"layers": 0, "restarts": 0},
         )
     with Timer("admm_dolfinx: surface penalty"):
-        beta = estimate.condition_number / k2
+        beta = BETA_FRACTION * estimate.condition_number / k2
         matrix = metric.penalty_matrix(beta)
         try:
-            mu_max, details = _largest_on_layer(problem, matrix, prefix, petsc_options)
+            mu_layer, details = _largest_on_layer(problem, matrix, prefix, petsc_options)
         finally:
             matrix.destroy()
+    # M + βL_Γ ⪰ M, so μ_max ≥ λ_max: the bound that a smooth top mode keeps (at small β
+    # the top of the μ spectrum is a smooth mode that the layer sees only in part)
+    mu_max = max(mu_layer, estimate.lambda_max)
+    details["mu_max_layer"] = mu_layer
     r = 1.0 / math.sqrt(MU_MIN_FRACTION * estimate.lambda_max * mu_max)
     result = SurfacePenalty(
         r=r,

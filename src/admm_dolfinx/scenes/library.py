@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import ufl
 from dolfinx import fem
-from dolfinx.mesh import Mesh, MeshTags
+from dolfinx.mesh import CellType, Mesh, MeshTags, create_box
 from mpi4py import MPI
 
 from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -28,6 +28,7 @@ from admm_dolfinx.scenes.meshing import (
     quarter_disc,
     rectangle,
     structured_rectangle,
+    tag_boundary,
 )
 
 __all__ = [
@@ -36,6 +37,7 @@ __all__ = [
     "example1",
     "example2",
     "example3",
+    "example3_hexahedral",
     "hertz",
     "hertz_solution",
     "hertz_sphere",
@@ -312,10 +314,95 @@ def pressed_block(
     Returns:
         The scene.
     """
-    tags = {"bottom": 3, "top": 1, "sides": 4}
     lower, upper = (-0.5, -1.0, -half_depth), (0.5, 1.0, half_depth)
-    data = box(comm, lower, upper, h_bottom, h_top, level, tags)
+    data = box(comm, lower, upper, h_bottom, h_top, level, _BLOCK_TAGS)
     msh, facet_tags = mesh_and_facet_tags(data)
+    return _block_scene(
+        name,
+        msh,
+        facet_tags,
+        displacement=displacement,
+        obstacle=obstacle,
+        E=E,
+        nu=nu,
+        clamp_sides=clamp_sides,
+        h=h_bottom / 2**level,
+        info={"E": E, "nu": nu, "displacement": displacement, "level": level},
+    )
+
+
+#: Facet tags of the block scenes.
+_BLOCK_TAGS = {"bottom": 3, "top": 1, "sides": 4}
+
+
+def example3_hexahedral(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    cells: int = 12,
+    E: float = 1e6,
+    nu: float = 0.45,
+    displacement: float = 0.2,
+) -> Scene:
+    """Example 3 on a structured hexahedral mesh (Q1): cells × 2 cells × cells boxes.
+
+    The block, obstacle, material and load of :func:`example3`; a mesh of trilinear
+    hexahedra (DOLFINx's built-in box) instead of gmsh's graded tetrahedra.
+
+    Args:
+        comm: Communicator.
+        cells: Hexahedra across the block's width and height (twice as many along y).
+        E: Young's modulus.
+        nu: Poisson ratio.
+        displacement: Downward displacement of the top face.
+
+    Returns:
+        The scene.
+    """
+    if isinstance(cells, bool) or not isinstance(cells, int | np.integer) or cells < 1:
+        raise ValueError(f"cells must be a positive integer, got {cells!r}.")
+    msh = create_box(
+        comm,
+        [np.array([-0.5, -1.0, -0.5]), np.array([0.5, 1.0, 0.5])],
+        [int(cells), 2 * int(cells), int(cells)],
+        CellType.hexahedron,
+    )
+    facet_tags = tag_boundary(
+        msh,
+        {
+            _BLOCK_TAGS["bottom"]: lambda x: np.isclose(x[2], -0.5),
+            _BLOCK_TAGS["top"]: lambda x: np.isclose(x[2], 0.5),
+            _BLOCK_TAGS["sides"]: lambda x: np.full(x.shape[1], True),
+        },
+    )
+    return _block_scene(
+        "example3_hexahedral",
+        msh,
+        facet_tags,
+        displacement=displacement,
+        obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
+        E=E,
+        nu=nu,
+        clamp_sides=False,
+        h=1.0 / cells,
+        info={"E": E, "nu": nu, "displacement": displacement, "cells": cells},
+    )
+
+
+def _block_scene(
+    name: str,
+    msh: Mesh,
+    facet_tags: MeshTags,
+    *,
+    displacement: float,
+    obstacle: Obstacle,
+    E: float,
+    nu: float,
+    clamp_sides: bool,
+    h: float,
+    info: dict,
+) -> Scene:
+    """The block's physics on a mesh tagged with :data:`_BLOCK_TAGS`."""
+    tags = dict(_BLOCK_TAGS)
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -337,8 +424,8 @@ def pressed_block(
         bcs=bcs,
         contact_marker=tags["bottom"],
         obstacle=obstacle,
-        h=h_bottom / 2**level,
-        info={"E": E, "nu": nu, "displacement": displacement, "level": level},
+        h=h,
+        info=info,
     )
 
 
