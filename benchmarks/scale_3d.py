@@ -36,6 +36,7 @@ With ``--mpi``, the default also runs under ``mpiexec -n 2`` at the sizes of
 
     python benchmarks/scale_3d.py              # the ladder to 2M dofs (about an hour)
     python benchmarks/scale_3d.py --quick      # one small mesh (smoke test)
+    python benchmarks/scale_3d.py --only 158k,"graded 350k"   # some sizes (no page)
 
 Writes out_benchmarks/scale_3d.csv (and scale_3d_mpi.csv).
 """
@@ -197,6 +198,9 @@ def main() -> None:
     parser.add_argument("--snes-limit", type=float, default=1200.0, help="seconds")
     parser.add_argument("--mpi", action="store_true", help="the default under mpiexec -n 2")
     parser.add_argument("--mpi-sizes", default="257k,1.2M")
+    parser.add_argument(
+        "--only", default=None, help="comma-separated sizes of the ladder (a partial run)"
+    )
     parser.add_argument("--worker", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -209,6 +213,12 @@ def main() -> None:
 
     Path(args.out).mkdir(parents=True, exist_ok=True)
     cases = QUICK if args.quick else LADDER
+    if args.only:
+        wanted = args.only.split(",")
+        unknown = [name for name in wanted if name not in cases]
+        if unknown:
+            parser.error(f"--only: unknown sizes {unknown}; the ladder has {list(cases)}")
+        cases = {name: cases[name] for name in wanted}
     memory = available_memory() or float("inf")
     rows = []
     factorised_time: dict[str, float] = {}

@@ -283,10 +283,10 @@ def calibration_meshes(quick: bool):
     meshes = [
         ("example3 level 1", lambda: example3(level=1)),
         ("hexahedral 12", lambda: example3_hexahedral(cells=12)),
-        ("graded 0.06/0.6 level 1", lambda: example3(level=1, h_bottom=0.06, h_top=0.6)),
     ]
     if not quick:
         meshes += [
+            ("graded 0.06/0.6 level 1", lambda: example3(level=1, h_bottom=0.06, h_top=0.6)),
             ("example3 level 2", lambda: example3(level=2)),
             ("hexahedral 16", lambda: example3_hexahedral(cells=16)),
             ("graded 0.04/0.8 level 1", lambda: example3(level=1, h_bottom=0.04, h_top=0.8)),
@@ -311,10 +311,12 @@ def calibration_rows(quick: bool) -> list[dict]:
             row = {"mesh": name, "dofs": problem.V.dofmap.index_map.size_global * 3}
             for b, m in grid:
                 surface.BETA_FRACTION, surface.MU_MIN_FRACTION = b, m
-                with ADMMSolver(problem) as solver:
-                    result = solver.solve()
                 mark = " (default)" if (b, m) == saved else ""
-                row[f"b={b:g} m={m:g}{mark}"] = result.iterations if result.converged else "–"
+                try:
+                    with ADMMSolver(problem) as solver:
+                        row[f"b={b:g} m={m:g}{mark}"] = solver.solve().iterations
+                except ADMMConvergenceError:  # a poor corner of the grid
+                    row[f"b={b:g} m={m:g}{mark}"] = "–"
             rows.append(row)
             say(row)
     finally:

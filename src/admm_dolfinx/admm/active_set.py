@@ -10,12 +10,13 @@ computes each step of it once per solve:
 * an attempt that reaches a set an earlier attempt stepped from follows the
   remembered steps at no cost, and goes on computing where that walk stopped;
 * a walk stopped by its round limit is therefore *resumed* by the next attempt that
-  joins it, not abandoned. The edge of the contact zone moves by about half its
+  joins it, not abandoned. The edge of the contact zone moves by a fraction of its
   error per round, so the rounds a walk needs grow with the number of contact nodes
   (``python benchmarks/scale_2d.py`` prints them); a limit per attempt must not
   become a limit per solve;
-* a set whose walk ended (at a solution already proposed, or at a singular system),
-  or a walk that returns to a set it has visited (a cycle), gives nothing.
+* a set whose walk ended (at a solution already proposed, at a singular system, or
+  at a step that raised), or a walk that returns to a set it has visited (a cycle),
+  gives nothing.
 
 ``python benchmarks/scale_2d.py`` shows the ADMM iteration counts this keeps flat as
 the 2D mesh is refined.
@@ -86,7 +87,11 @@ class ActiveSetWalk(Generic[T]):
                 continue
             if rounds == max_rounds:  # the next attempt that gets here resumes
                 return None, rounds
-            solution, moved = step(active)
+            try:
+                solution, moved = step(active)
+            except BaseException:
+                self._next[key] = None  # not retried in this solve
+                raise
             rounds += 1
             if moved is None:
                 self._next[key] = None

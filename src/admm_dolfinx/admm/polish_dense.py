@@ -159,7 +159,7 @@ class ActiveSetPolish:
         return self._schur, self._k_cc, self._weights
 
     def reset(self) -> None:
-        """Start a solve: read the current gap; forget the guesses tried; collective."""
+        """Start a solve: read the current gap; forget the walk's steps; collective."""
         self._gap = self._layout.gather(self.problem.contact.gap)
         self._walk.clear()
         self.attempts = self.rounds = self.skipped = 0

@@ -97,7 +97,7 @@ class SparsePolish:
         self.penalty = float(r)
 
     def reset(self) -> None:
-        """Start a solve: forget the guesses tried; collective."""
+        """Start a solve: forget the walk's steps; collective."""
         self._walk.clear()
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0

@@ -147,7 +147,8 @@ class ADMMSettings:
             where it also gives r*, i.e. 2D, one process, ``penalty="auto"``).
         polish: Active-set polishing (None: in 2D with ``penalty="auto"`` and a
             factorised step 1; True also in 3D; False: never).
-        polish_rounds: Primal-dual active-set corrections per dense polishing guess.
+        polish_rounds: New primal-dual active-set corrections per dense polishing
+            attempt (an attempt that joins an earlier walk resumes it).
         step1: How step 1 solves with A + rK: ``"factorised"`` (MUMPS Cholesky, one
             factorisation per r), ``"iterative"`` (conjugate gradients with multigrid,
             warm-started, to a tolerance tied to the outer residual: an inexact ADMM),

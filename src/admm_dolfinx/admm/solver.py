@@ -218,7 +218,12 @@ class ADMMSolver:
             self._time_schur = private.timings["factorization"] if private else 0.0
             penalty = s.penalty  # a number unless "auto" (then r* or the surface r below)
             multigrid = None
-            if plan.penalty == "local" and isinstance(self.operator, IterativeOperator):
+            if (
+                plan.penalty == "local"
+                and isinstance(self.operator, IterativeOperator)
+                and plan.step1_options.get("pc_type") == "gamg"
+                and not problem.rigid_motions.floating  # λ_max is factorised then
+            ):
                 # step 1's hierarchy, built on A now, preconditions r*'s λ_max too
                 multigrid = self.operator.set_up_hierarchy()
                 logger.info(
@@ -458,8 +463,9 @@ class ADMMSolver:
         else:
             z = self._warm_state(warm_start, x_old)
             if inexact is not None:
-                # the state is as good as the end of that solve: so is the first inner
-                # solve (a loose first tolerance would throw the warm start away)
+                # the first inner solve as tight as the end of that solve: a loose one
+                # would throw a warm start at a fixed point away; after a load step it
+                # only asks more of the first (warm-started) CG solve than needed
                 last_residual = _final_residual(warm_start)
         if polisher is not None:
             polisher.reset()

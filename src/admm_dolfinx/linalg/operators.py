@@ -216,6 +216,9 @@ class IterativeOperator(PenalisedOperator):
     def set_up_hierarchy(self) -> PETSc.PC | None:
         """Set the preconditioner up on A itself, before r is known; collective.
 
+        Call it once, first: after a :meth:`set_penalty` the kept interpolation would
+        be reused, not rebuilt on A.
+
         The multigrid hierarchy (aggregates, smoothed interpolation) is the dear part
         of the set-up, and r changes little of it: built on A (r = 0) and kept by
         every later :meth:`set_penalty` (``pc_gamg_reuse_interpolation``,

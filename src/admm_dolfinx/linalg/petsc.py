@@ -69,7 +69,8 @@ def iterative_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
 #: MUMPS ordering in 2D: approximate minimum fill (AMF), faster to factorise than
 #: MUMPS's own choice (METIS) on every 2D mesh of ``python benchmarks/orderings.py``,
 #: at the same substitution time; in 3D METIS stays.
-#: With a Schur complement (:mod:`admm_dolfinx.linalg.condensed`) MUMPS runs AMD instead.
+#: A factorisation with a Schur complement cannot use AMF: the condensed one
+#: (:mod:`admm_dolfinx.linalg.condensed`) asks for AMD, or METIS on large meshes.
 ORDERING_2D: dict[str, Any] = {"mat_mumps_icntl_7": 2}
 
 _counter = itertools.count()

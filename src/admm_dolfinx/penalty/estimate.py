@@ -83,7 +83,8 @@ class PenaltyEstimate:
             ``time_dense``;
             iterative: solves and seconds per extreme (``solves_min``, ``time_min``,
             ``solves_max``, ``time_max``; ``time_multigrid_setup`` when λ_max came
-            from multigrid), the auxiliary r_a.
+            from multigrid, 0 with ``multigrid_shared``: step 1's hierarchy, set up
+            by step 1), the auxiliary r_a.
         condition_number: κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1).
     """
 

@@ -462,5 +462,7 @@ def lambda_max_multigrid(
         lobpcg_iterations=iterations,
         lambda_max_method="multigrid",
         time_multigrid_setup=counts.get("multigrid_setup", 0.0),
+        # borrowed: its set-up is step 1's (Timings.factorization), not r*'s
+        multigrid_shared=multigrid is not None,
     )
     return lambda_max, info

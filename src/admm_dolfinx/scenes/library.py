@@ -232,6 +232,11 @@ def example2(
     )
 
 
+def _example3_ball() -> Ball:
+    """Example 3's obstacle: the ball of radius 0.5 touching Γ_C at (−0.3, 0, −0.5)."""
+    return Ball(center=(-0.3, 0.0, -1.0), radius=0.5)
+
+
 def example3(
     comm: MPI.Comm = MPI.COMM_WORLD,
     *,
@@ -272,7 +277,7 @@ def example3(
         h_bottom=h_bottom,
         h_top=h_top,
         displacement=displacement,
-        obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
+        obstacle=_example3_ball(),
         E=E,
         nu=nu,
     )
@@ -379,7 +384,7 @@ def example3_hexahedral(
         msh,
         facet_tags,
         displacement=displacement,
-        obstacle=Ball(center=(-0.3, 0.0, -1.0), radius=0.5),
+        obstacle=_example3_ball(),
         E=E,
         nu=nu,
         clamp_sides=False,
