@@ -66,7 +66,6 @@ the callback, which says so (``status="callback"``, ``converged=False``).
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -123,12 +122,12 @@ _HISTORY = ("du", "dp", "fpr", "feasibility", "complementarity", "equilibrium", 
 
 
 def _final_residual(result: ADMMResult) -> float | None:
-    """The scaled fixed-point residual a result ended at (None if it recorded none)."""
-    fpr = result.history.get("fpr") if isinstance(result.history, dict) else None
-    if not fpr:
-        return None
-    value = float(fpr[-1])
-    return value if math.isfinite(value) else None
+    """The scaled fixed-point residual a result ended at (None if it recorded none).
+
+    :class:`~admm_dolfinx.admm.inexact.InexactRule` ignores a NaN and an infinity.
+    """
+    fpr = result.history.get("fpr")
+    return float(fpr[-1]) if fpr else None
 
 
 class ADMMSolver:
