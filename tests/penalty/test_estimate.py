@@ -52,6 +52,34 @@ def test_example3_against_algorithm5(level):
 
 
 @serial_only
+@pytest.mark.parametrize("scene", ["example3", "graded"])
+def test_layers_stop_at_the_tolerance_asked(scene):
+    """λ_min's layers (local method) grow until two agree to ``lambda_min_tol``, and
+    the last one's value is then within that tolerance of the whole body's λ_min
+    (the dense pencil): the truncation error at least halves per doubling of the
+    layer. A looser tolerance (the surface metric's β) stops at fewer rings, never
+    more; on Example 3 and on a mesh graded towards Γ_C (elements 10x smaller on
+    Γ_C than on the top face) both stop within 4 rings."""
+    if scene == "graded":
+        problem = example3(level=0, h_bottom=0.06, h_top=0.6).problem(contact_normal="body")
+    else:
+        problem = example3(level=1).problem(contact_normal="body")
+    exact = algorithm5_eigenvalues(problem)[0]
+    rings = []
+    for lambda_min_tol in (0.02, 0.1):
+        est = estimate_penalty(problem, method="local", lambda_min_tol=lambda_min_tol)
+        assert est.details["lambda_min_tol"] == lambda_min_tol
+        assert est.details["layer_steps"] >= 2  # an agreement needs two layers
+        assert est.lambda_min <= exact * (1 + 1e-3)  # a layer is stiffer than the body
+        assert est.lambda_min == pytest.approx(exact, rel=lambda_min_tol)
+        rings.append(est.details["layers"])
+    assert rings[1] <= rings[0] <= 4
+    assert estimate_penalty(problem, method="local").details["lambda_min_tol"] == 0.02
+    with pytest.raises(ValueError, match="lambda_min_tol"):
+        estimate_penalty(problem, method="local", lambda_min_tol=1.0)
+
+
+@serial_only
 def test_rotated_reference_agrees_with_algorithm5():
     """The general (rotated) dense reference reproduces the literal Algorithm 5."""
     problem = example1(h=1 / 8).problem()

@@ -96,7 +96,11 @@ from admm_dolfinx.linalg.condensed import CondensedOperator
 from admm_dolfinx.linalg.operators import IterativeOperator, PenalisedOperator
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
 from admm_dolfinx.penalty.estimate import PenaltyEstimate, estimate_penalty
-from admm_dolfinx.penalty.surface import SurfacePenalty, estimate_surface_penalty
+from admm_dolfinx.penalty.surface import (
+    LAMBDA_MIN_TOL,
+    SurfacePenalty,
+    estimate_surface_penalty,
+)
 from admm_dolfinx.problem.checks import check_finite
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_zone import contact_area, mean_pressure
@@ -244,6 +248,8 @@ class ADMMSolver:
                     petsc_options=plan.factor_options,
                     petsc_options_prefix=prefixes["penalty"],
                     multigrid=multigrid,
+                    # the surface metric uses λ_min for β alone, which needs less
+                    lambda_min_tol=LAMBDA_MIN_TOL if plan.metric == "surface" else None,
                 )
                 penalty = self.penalty_estimate.r
             if plan.metric == "surface":

@@ -15,10 +15,13 @@ is the one entry point; the method is an explicit choice (``method``):
   (:func:`~admm_dolfinx.penalty.dense.extremes_from_schur`). Exact; the same on any
   number of processes to round-off; the ADMM then solves with the same factorisation.
 * ``"local"`` (the default elsewhere): no factorisation of the whole body. λ_min on
-  layers of cells along Γ_C (:mod:`admm_dolfinx.penalty.lambda_min`), λ_max by
-  multigrid LOBPCG on the full-space pencil (:mod:`admm_dolfinx.penalty.lambda_max`);
-  to the eigenvalue tolerance ``tol``, and, through the multigrid's aggregates,
-  dependent on the partition at that level.
+  layers of cells along Γ_C (:mod:`admm_dolfinx.penalty.lambda_min`), grown until
+  they agree to ``lambda_min_tol``; λ_max by multigrid LOBPCG on the full-space pencil
+  (:mod:`admm_dolfinx.penalty.lambda_max`), to the eigenvalue tolerance ``tol``, and,
+  through the multigrid's aggregates, dependent on the partition at that level.
+  r* = 1/sqrt(λ_min λ_max) moves by half of λ_min's relative error, so r* to ``tol``
+  needs λ_min to 2 ``tol`` only (the default of ``lambda_min_tol``); a caller that
+  needs λ_min for less (the surface metric's β) asks for less.
 * ``"factorised"``: both ends by Krylov–Schur on operators applied with factorisations
   of the body (Â for the exact Schur complement, A + r_a NᵀMN for λ_max), in the
   solver's own operator so that the symbolic analysis is shared with step 1; exact
@@ -122,6 +125,7 @@ def estimate_penalty(
     petsc_options: dict | None = None,
     petsc_options_prefix: str | None = None,
     multigrid: PETSc.PC | None = None,
+    lambda_min_tol: float | None = None,
 ) -> PenaltyEstimate:
     """Compute r* = 1/sqrt(λ_min λ_max) with SLEPc on the contact dofs; collective.
 
@@ -144,6 +148,9 @@ def estimate_penalty(
         multigrid: A multigrid preconditioner of A set up already (the iterative
             step 1's, :meth:`~admm_dolfinx.linalg.operators.IterativeOperator.set_up_hierarchy`)
             for the local method's λ_max, borrowed; it builds its own otherwise.
+        lambda_min_tol: The local method's tolerance on λ_min's layer truncation (two
+            successive layers agree to it), in (0, 1); default ``min(2 tol, 0.5)``,
+            which keeps r* within ``tol``.
 
     Returns:
         The estimate.
@@ -154,6 +161,10 @@ def estimate_penalty(
     """
     if not (0.0 < tol < 1.0):
         raise ValueError(f"tol must lie in (0, 1), got {tol}.")
+    if lambda_min_tol is None:
+        lambda_min_tol = min(2.0 * tol, 0.5)
+    elif not (0.0 < lambda_min_tol < 1.0):
+        raise ValueError(f"lambda_min_tol must lie in (0, 1), got {lambda_min_tol}.")
     if isinstance(max_it, bool) or not isinstance(max_it, int | np.integer) or max_it < 1:
         raise ValueError(f"max_it must be an integer ≥ 1, got {max_it!r}.")
     if method not in PENALTY_METHODS:
@@ -174,7 +185,7 @@ def estimate_penalty(
     if isinstance(operator, CondensedOperator):
         operator = None
     lambda_min, lambda_max, details = _iterative_extremes(
-        problem, method, tol, max_it, operator, prefix, petsc_options, multigrid
+        problem, method, tol, max_it, operator, prefix, petsc_options, multigrid, lambda_min_tol
     )
     return _finish(lambda_min, lambda_max, details, t_start)
 
@@ -188,6 +199,7 @@ def _iterative_extremes(
     prefix: str,
     petsc_options: dict | None,
     multigrid: PETSc.PC | None = None,
+    lambda_min_tol: float | None = None,
 ) -> tuple[float, float, dict[str, Any]]:
     """λ_min, λ_max and details by the ``"local"`` or ``"factorised"`` method; collective.
 
@@ -197,6 +209,8 @@ def _iterative_extremes(
     space = ContactSpace(problem)
     own_operator = operator is None
     details: dict[str, Any] = {"method": method, "tol": tol, "m": space.m}
+    if method == "local":
+        details["lambda_min_tol"] = lambda_min_tol
     start = space.start_vector()
 
     def shared_operator() -> PenalisedOperator:
@@ -210,7 +224,7 @@ def _iterative_extremes(
             t0 = time.perf_counter()
             if method == "local":
                 lambda_min, info = lambda_min_from_layers(
-                    space, tol, max_it, prefix, petsc_options, start
+                    space, tol, max_it, prefix, petsc_options, start, lambda_min_tol
                 )
             else:
                 lambda_min, info = lambda_min_exact(

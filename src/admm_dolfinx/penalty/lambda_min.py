@@ -15,8 +15,11 @@ The eigenvector of μ_max is the shortest-wave contact mode, which lives within 
 elements of Γ_C. So the ``"local"`` method needs no factorisation of the whole body:
 S is replaced by the Schur complement S_L of a layer of L rings of cells along Γ_C,
 with the rest held fixed (S_L ≥ S, and S_L = S once the layer is the whole mesh);
-L = 2, 4, 8, ... until μ_max settles to the tolerance, each layer costing a
-factorisation of its own small Â (:func:`lambda_min_from_layers`). The
+L = 1, 2, 4, ... until μ_max settles to the tolerance the caller needs, each layer
+costing a factorisation of its own Â (:func:`lambda_min_from_layers`). On a mesh graded
+towards Γ_C a layer of many rings holds much of the body, so the layers stop as soon
+as they can: the truncation error falls by more than half per doubling of L, so the
+last change bounds the error left in the last layer's value. The
 ``"factorised"`` method uses the exact S, with one factorisation of the whole Â in the
 solver's shared operator (:func:`lambda_min_exact`).
 """
@@ -159,23 +162,34 @@ def _top_of_schur(space, schur, prefix, tol, max_it, start) -> tuple[float, PETS
 
 
 def lambda_min_from_layers(
-    space: ContactSpace, tol: float, max_it: int, prefix: str, options, start: PETSc.Vec
+    space: ContactSpace,
+    tol: float,
+    max_it: int,
+    prefix: str,
+    options,
+    start: PETSc.Vec,
+    layer_tol: float | None = None,
 ) -> tuple[float, dict[str, Any]]:
     """λ_min from μ_max of the Schur complement of growing layers along Γ_C; collective.
 
     S_L (the rest of the body held fixed beyond L rings of cells) is stiffer than S
-    and tends to it as L grows. L = 2, 4, 8, ... until two successive μ_max agree to
-    ``tol`` or the layer is the whole mesh (then S_L = S exactly).
+    and tends to it as L grows: μ_max(S_L) decreases to μ_max(S). L = 1, 2, 4, ...
+    until two successive μ_max agree to ``layer_tol`` or the layer is the whole mesh
+    (then S_L = S exactly). The value of the wider layer is returned; its truncation
+    error is below the last change as long as the error at least halves per doubling
+    of L (``tests/penalty/test_estimate.py`` checks λ_min against the dense pencil).
 
     Args:
         space: The contact space.
-        tol: Eigenvalue tolerance.
+        tol: Eigenvalue tolerance of each layer's eigenvalue solve.
         max_it: Krylov–Schur restarts.
         prefix: Options prefix; the layer factorisations read ``{prefix}layer_``, the
             eigensolver ``{prefix}lmin_``.
         options: Options of the layer factorisations (MUMPS Cholesky by default).
         start: Start vector of the first layer (each wider layer starts from the
             previous eigenvector).
+        layer_tol: Relative agreement of two successive layers that ends the growth
+            (default ``tol``).
 
     Returns:
         λ_min and details (``layers``, ``layer_steps``, ``solves_min``, ``restarts_min``).
@@ -183,7 +197,8 @@ def lambda_min_from_layers(
     problem = space.problem
     bs = space.map.bs
     row0 = problem.A.getOwnershipRange()[0]
-    previous, layers, solves, steps = None, 2, 0, 0
+    layer_tol = tol if layer_tol is None else layer_tol
+    previous, layers, solves, steps = None, 1, 0, 0
     vec = None
     try:
         while True:
@@ -218,7 +233,7 @@ def lambda_min_from_layers(
             if vec is not None:
                 vec.destroy()
             vec = new  # warm start the next, wider layer
-            if whole or (previous is not None and abs(previous - mu) <= tol * mu):
+            if whole or (previous is not None and abs(previous - mu) <= layer_tol * mu):
                 details = {
                     "layers": "all" if whole else layers,
                     "layer_steps": steps,
