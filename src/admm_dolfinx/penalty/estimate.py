@@ -198,8 +198,8 @@ def _iterative_extremes(
     operator: PenalisedOperator | None,
     prefix: str,
     petsc_options: dict | None,
-    multigrid: PETSc.PC | None = None,
-    lambda_min_tol: float | None = None,
+    multigrid: PETSc.PC | None,
+    lambda_min_tol: float,
 ) -> tuple[float, float, dict[str, Any]]:
     """λ_min, λ_max and details by the ``"local"`` or ``"factorised"`` method; collective.
 

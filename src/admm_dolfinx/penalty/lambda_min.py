@@ -168,7 +168,7 @@ def lambda_min_from_layers(
     prefix: str,
     options,
     start: PETSc.Vec,
-    layer_tol: float | None = None,
+    layer_tol: float,
 ) -> tuple[float, dict[str, Any]]:
     """λ_min from μ_max of the Schur complement of growing layers along Γ_C; collective.
 
@@ -188,8 +188,7 @@ def lambda_min_from_layers(
         options: Options of the layer factorisations (MUMPS Cholesky by default).
         start: Start vector of the first layer (each wider layer starts from the
             previous eigenvector).
-        layer_tol: Relative agreement of two successive layers that ends the growth
-            (default ``tol``).
+        layer_tol: Relative agreement of two successive layers that ends the growth.
 
     Returns:
         λ_min and details (``layers``, ``layer_steps``, ``solves_min``, ``restarts_min``).
@@ -197,7 +196,6 @@ def lambda_min_from_layers(
     problem = space.problem
     bs = space.map.bs
     row0 = problem.A.getOwnershipRange()[0]
-    layer_tol = tol if layer_tol is None else layer_tol
     previous, layers, solves, steps = None, 1, 0, 0
     vec = None
     try:
