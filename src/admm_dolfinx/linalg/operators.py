@@ -15,6 +15,7 @@ from typing import Any
 from dolfinx.common import Timer
 from petsc4py import PETSc
 
+from admm_dolfinx.linalg.galerkin import CoarsePenalty
 from admm_dolfinx.linalg.petsc import PetscOwner, check_solve, create_factor_solver
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
@@ -212,6 +213,68 @@ class IterativeOperator(PenalisedOperator):
         self.last_iterations = 0
         self.unconverged = 0
         self.rtol = 1e-8
+        self._coarse: CoarsePenalty | None = None
+
+    def destroy(self) -> None:
+        """Free the matrix, the KSP, the penalty matrix and the projected penalties."""
+        if self._coarse is not None:
+            self._coarse.destroy()
+            self._coarse = None
+        super().destroy()
+
+    def set_penalty(self, r: float) -> None:
+        """Form A + rK and set the preconditioner up for it.
+
+        The first call sets the multigrid up (hierarchy and coarse operators). Later
+        ones, when the hierarchy is kept (GAMG with ``pc_gamg_reuse_interpolation``,
+        the default), move the coarse operators to the new r as A_l + r K_l
+        (:mod:`admm_dolfinx.linalg.galerkin`) instead of recomputing the Galerkin
+        products; otherwise PETSc sets the preconditioner up again.
+
+        Args:
+            r: Penalty parameter (≥ 0; the caller validates user input).
+        """
+        if r == self.penalty:
+            return
+        K = self.problem.K if self._penalty_matrix is None else self._penalty_matrix
+        coarse = self._coarse
+        if coarse is None:
+            super().set_penalty(r)
+            pc = self._factorisation().getPC()
+            if pc.getType() == PETSc.PC.Type.GAMG and _keeps_hierarchy(self._options):
+                self._coarse = CoarsePenalty(pc, K, r)
+            return
+        A, matrix = self.problem.A, self.matrix
+        assert matrix is not None  # set up by the first call
+        with Timer("admm_dolfinx: operator A + rK"):
+            t0 = time.perf_counter()
+            A.copy(matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            matrix.axpy(r, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            self.timings["operator"] = time.perf_counter() - t0
+        with Timer("admm_dolfinx: multigrid coarse operators A_l + r K_l"):
+            t0 = time.perf_counter()
+            coarse.move(matrix, r)
+            self.timings["factorization"] = time.perf_counter() - t0
+        self.penalty = float(r)
+        self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
+
+    def use_penalty_matrix(self, matrix: PETSc.Mat, name: str) -> None:
+        """As :meth:`PenalisedOperator.use_penalty_matrix`; the coarse operators follow."""
+        super().use_penalty_matrix(matrix, name)
+        if self._coarse is not None and not self._coarse.change_matrix(matrix):
+            self._drop_coarse()
+
+    def load(self, values: PETSc.Mat, label: str) -> None:
+        """As :meth:`PenalisedOperator.load`, the preconditioner set up afresh."""
+        self._drop_coarse()
+        super().load(values, label)
+
+    def _drop_coarse(self) -> None:
+        """Let PETSc set the preconditioner up at the next change of the matrix."""
+        if self._coarse is not None:
+            self._coarse.pc.setReusePreconditioner(False)
+            self._coarse.destroy()
+            self._coarse = None
 
     def set_up_hierarchy(self) -> PETSc.PC | None:
         """Set the preconditioner up on A itself, before r is known; collective.
@@ -222,8 +285,8 @@ class IterativeOperator(PenalisedOperator):
         The multigrid hierarchy (aggregates, smoothed interpolation) is the dear part
         of the set-up, and r changes little of it: built on A (r = 0) and kept by
         every later :meth:`set_penalty` (``pc_gamg_reuse_interpolation``,
-        :data:`~admm_dolfinx.linalg.petsc.GAMG_KEEP_HIERARCHY`), which recomputes only
-        the Galerkin coarse operators of A + rK. Meanwhile the r* estimate
+        :data:`~admm_dolfinx.linalg.petsc.GAMG_KEEP_HIERARCHY`), which moves only the
+        coarse operators to A_l + r K_l (:mod:`admm_dolfinx.linalg.galerkin`). Meanwhile the r* estimate
         preconditions its λ_max eigensolve with it, instead of building a hierarchy
         of its own (``python benchmarks/scale_3d.py`` times both set-ups).
 
@@ -270,3 +333,9 @@ class IterativeOperator(PenalisedOperator):
             self.unconverged += 1
             return
         check_solve(ksp, self._label)
+
+
+def _keeps_hierarchy(options: Mapping[str, Any]) -> bool:
+    """Whether the options keep GAMG's hierarchy across values (``pc_gamg_reuse_interpolation``)."""
+    value = options.get("pc_gamg_reuse_interpolation", False)
+    return value is None or str(value).lower() in ("1", "true", "yes", "on")

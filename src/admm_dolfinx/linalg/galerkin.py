@@ -1,0 +1,115 @@
+"""The coarse operators of a kept multigrid hierarchy of A + rK, formed as A_l + r K_l.
+
+The Galerkin coarse operator of level l is P_lᵀ (A + rK) P_l, with P_l the
+interpolation from level l to the fine grid: it is linear in r,
+
+    P_lᵀ (A + rK) P_l = A_l + r K_l,     K_l = P_lᵀ K P_l.
+
+With the hierarchy kept across values of r (``pc_gamg_reuse_interpolation``), PETSc
+still recomputes every product P_lᵀ (A + rK) P_l for a new r, and those products are
+most of the set-up. K (NᵀMN, or Nᵀ(M + βL_Γ)N) lives on the contact boundary, so its
+products K_l are cheap: :class:`CoarsePenalty` computes them once per penalty matrix
+and moves each coarse operator to a new r by adding (r − r_old) K_l in place. The
+level smoothers (Chebyshev's eigenvalue bounds, Jacobi's diagonal) and the coarse
+solve are then set up again on the new operators, as PETSc's own set-up would, and
+the multigrid preconditioner is told to keep its hierarchy. The operators agree with
+PETSc's recomputed ones to round-off (``tests/linalg/test_galerkin.py``).
+"""
+
+from __future__ import annotations
+
+from petsc4py import PETSc
+
+__all__ = ["CoarsePenalty"]
+
+
+class CoarsePenalty:
+    """Keeps a set-up GAMG preconditioner's coarse operators equal to P_lᵀ (A + rK) P_l.
+
+    Args:
+        pc: A ``PCGAMG`` set up on A + r K (its interpolation is kept from then on).
+        penalty_matrix: K of that set-up (borrowed: its owner tells
+            :meth:`change_matrix` before freeing it).
+        r: r of that set-up.
+    """
+
+    def __init__(self, pc: PETSc.PC, penalty_matrix: PETSc.Mat, r: float):
+        self.pc = pc
+        self._matrix = penalty_matrix
+        self._coefficient = float(r)
+        self._projected: list[PETSc.Mat] = []  # K_l, coarsest first (fine level excluded)
+
+    def change_matrix(self, penalty_matrix: PETSc.Mat) -> bool:
+        """Penalise with another matrix from the next :meth:`move` on, if possible.
+
+        Returns:
+            Whether it is: only while the coarse operators hold no multiple of the
+            present one (r = 0); otherwise the preconditioner must be set up afresh.
+        """
+        if self._coefficient != 0.0:
+            return False
+        self._free_projected()
+        self._matrix = penalty_matrix
+        return True
+
+    def move(self, fine: PETSc.Mat, r: float) -> None:
+        """Make the hierarchy that of ``fine`` = A + rK; collective.
+
+        Args:
+            fine: The fine operator, whose values the caller has set to A + rK (the
+                same matrix object the preconditioner was set up with).
+            r: The new r.
+        """
+        if not self._projected:
+            self._project()
+        pc, levels = self.pc, self.pc.getMGLevels()
+        step = float(r) - self._coefficient
+        for level in range(levels):
+            smoother = pc.getMGSmoother(level)
+            operator = fine if level == levels - 1 else smoother.getOperators()[0]
+            if level < levels - 1 and step != 0.0:
+                operator.axpy(
+                    step,
+                    self._projected[level],
+                    structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN,
+                )
+            operator.setOption(PETSc.Mat.Option.SPD, True)  # axpy forgets it
+            if smoother.getType() == PETSc.KSP.Type.CHEBYSHEV:
+                _estimate_bounds_afresh(smoother)
+            smoother.setOperators(operator, operator)
+            smoother.setUp()  # as PCSetUp_MG: Jacobi, Chebyshev's bounds, coarse LU
+        self._coefficient = float(r)
+        pc.setReusePreconditioner(True)  # the hierarchy is current: no PETSc set-up
+
+    def _project(self) -> None:
+        """K_l = P_lᵀ K P_l down the levels (each from the next finer one)."""
+        pc, levels = self.pc, self.pc.getMGLevels()
+        projected = [self._matrix]
+        for level in range(levels - 1, 0, -1):
+            projected.append(projected[-1].ptap(pc.getMGInterpolation(level)))
+        self._projected = projected[:0:-1]  # coarsest first, the fine K dropped
+
+    def _free_projected(self) -> None:
+        for matrix in self._projected:
+            matrix.destroy()
+        self._projected = []
+
+    def destroy(self) -> None:
+        """Free the projected matrices (the preconditioner is its owner's)."""
+        self._free_projected()
+
+
+def _estimate_bounds_afresh(smoother: PETSc.KSP) -> None:
+    """Make a Chebyshev smoother estimate its eigenvalue bounds on its next set-up.
+
+    GAMG's first set-up hands each Chebyshev smoother the extreme eigenvalues of
+    D⁻¹A_l found while smoothing the prolongator; they belong to the operator of that
+    set-up. PETSc's own set-up at a new r (with the interpolation kept) has the
+    smoothers estimate them again, by a few Krylov iterations on the new operator;
+    recreating the Chebyshev context does the same here, the user's options for the
+    smoother applied again. A fresh context each time keeps the estimate a function of
+    the operator alone: a kept estimator's next estimate depends on its history.
+    """
+    smoother.setType(PETSc.KSP.Type.RICHARDSON)
+    smoother.setType(PETSc.KSP.Type.CHEBYSHEV)
+    smoother.setFromOptions()

@@ -1,0 +1,134 @@
+"""The kept multigrid hierarchy moved to a new r as A_l + r K_l: the coarse operators PETSc
+would recompute, the same CG iterations, and a fresh set-up where the sum cannot apply."""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from pathlib import Path
+
+import pytest
+from petsc4py import PETSc
+
+from admm_dolfinx.linalg.operators import IterativeOperator, PenalisedOperator
+from admm_dolfinx.linalg.petsc import iterative_options
+from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.scenes import example3
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def _coarse_operators(operator: IterativeOperator) -> list[PETSc.Mat]:
+    pc = operator.ksp.getPC()
+    return [pc.getMGSmoother(level).getOperators()[0] for level in range(pc.getMGLevels())]
+
+
+def _petscs_set_up(operator: IterativeOperator, r: float) -> None:
+    """PETSc's own set-up at r, its hierarchy kept: the Galerkin products recomputed."""
+    operator._drop_coarse()
+    PenalisedOperator.set_penalty(operator, r)
+
+
+def _chebyshev_bounds(operator: IterativeOperator, name: str) -> list[tuple[str, float]]:
+    """Per Chebyshev level, how its eigenvalue bounds were found and the largest, as
+    the KSP's view reports them (petsc4py has no getter for them)."""
+    comm = operator.problem.mesh.comm
+    path = comm.bcast(str(Path(tempfile.mkdtemp()) / f"{name}.txt") if comm.rank == 0 else None)
+    viewer = PETSc.Viewer().createASCII(path, comm=comm)
+    operator.ksp.view(viewer)
+    viewer.destroy()
+    comm.barrier()
+    found = re.findall(
+        r"eigenvalues (provided|estimated via \w+)\W+min [-\d.e+]+, max ([-\d.e+]+)",
+        Path(path).read_text(),
+    )
+    return [(how, float(largest)) for how, largest in found]
+
+
+def _galerkin_products() -> int:
+    return PETSc.Log.Event("PCGAMG Gal l00").getPerfInfo()["count"]
+
+
+def _solve(operator: IterativeOperator, problem) -> tuple[int, PETSc.Vec]:
+    b = problem.create_vector()
+    problem.assemble_rhs(0.0, b)
+    x = b.duplicate()
+    x.set(0.0)
+    operator.set_tolerance(1e-10)
+    operator.solve(b, x)
+    b.destroy()
+    return operator.last_iterations, x
+
+
+def _assert_same_hierarchy(moved: IterativeOperator, recomputed: IterativeOperator, problem):
+    levels = _coarse_operators(moved)
+    assert len(levels) == len(_coarse_operators(recomputed)) >= 3
+    for mine, petscs in zip(levels, _coarse_operators(recomputed), strict=True):
+        difference = mine.duplicate(copy=True)
+        difference.axpy(-1.0, petscs)
+        assert difference.norm() <= 1e-12 * petscs.norm()
+        difference.destroy()
+    # Every Chebyshev smoother estimated its bounds on its new operator, as PETSc's
+    # set-up has them do, instead of keeping the first set-up's (from smoothing the
+    # prolongator at the old r). The estimates agree with PETSc's to the accuracy of a
+    # 10-step Krylov estimate from a random start (which PETSc draws per estimator).
+    mine, petscs = _chebyshev_bounds(moved, "moved"), _chebyshev_bounds(recomputed, "petsc")
+    assert len(mine) == len(petscs) == len(levels) - 1
+    for (how, largest), (_, petscs_largest) in zip(mine, petscs, strict=True):
+        assert how.startswith("estimated via")
+        assert largest == pytest.approx(petscs_largest, rel=0.05)
+    (its_moved, x_moved), (its_recomputed, x_recomputed) = (
+        _solve(moved, problem),
+        _solve(recomputed, problem),
+    )
+    assert abs(its_moved - its_recomputed) <= 2
+    x_moved.axpy(-1.0, x_recomputed)
+    assert x_moved.norm() <= 1e-8 * x_recomputed.norm()
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return example3(level=1).problem()
+
+
+def test_a_new_r_moves_the_coarse_operators_to_petscs_galerkin_products(problem):
+    """Set up at r = 0, then at r* and at 3 r*: the coarse operators are those of PETSc's
+    recomputed set-up (P_lᵀ(A + rK)P_l) to round-off, with no Galerkin product of A."""
+    PETSc.Log.begin()
+    moved = IterativeOperator(problem, "moved_", iterative_options(None))
+    recomputed = IterativeOperator(problem, "recomputed_", iterative_options(None))
+    try:
+        moved.set_penalty(0.0)
+        recomputed.set_penalty(0.0)
+        for r in (3e6, 9e6):
+            before = _galerkin_products()
+            moved.set_penalty(r)
+            assert _galerkin_products() == before  # no product of A recomputed
+            _petscs_set_up(recomputed, r)
+            _assert_same_hierarchy(moved, recomputed, problem)
+    finally:
+        moved.destroy()
+        recomputed.destroy()
+
+
+def test_a_new_penalty_matrix_is_summed_at_r_zero_and_set_up_afresh_otherwise(problem):
+    """The surface metric's Nᵀ(M + βL_Γ)N replaces NᵀMN: at r = 0 its products are formed
+    and summed; after a set-up at r > 0 the coarse operators hold r NᵀMN's products, so
+    PETSc sets the preconditioner up again. Both give PETSc's operators."""
+    metric = SurfaceMetric(problem)
+    for first in (0.0, 1e6):
+        moved = IterativeOperator(problem, "moved_", iterative_options(None))
+        recomputed = IterativeOperator(problem, "recomputed_", iterative_options(None))
+        try:
+            for operator in (moved, recomputed):  # the same hierarchy, built at r = first
+                operator.set_penalty(first)
+                operator.use_penalty_matrix(metric.penalty_matrix(0.3), "Nᵀ(M + βL_Γ)N")
+            PETSc.Log.begin()
+            before = _galerkin_products()
+            moved.set_penalty(3e6)
+            assert _galerkin_products() - before == (0 if first == 0.0 else 1)
+            _petscs_set_up(recomputed, 3e6)
+            _assert_same_hierarchy(moved, recomputed, problem)
+        finally:
+            moved.destroy()
+            recomputed.destroy()
