@@ -286,9 +286,9 @@ class IterativeOperator(PenalisedOperator):
         of the set-up, and r changes little of it: built on A (r = 0) and kept by
         every later :meth:`set_penalty` (``pc_gamg_reuse_interpolation``,
         :data:`~admm_dolfinx.linalg.petsc.GAMG_KEEP_HIERARCHY`), which moves only the
-        coarse operators to A_l + r K_l (:mod:`admm_dolfinx.linalg.galerkin`). Meanwhile the r* estimate
-        preconditions its λ_max eigensolve with it, instead of building a hierarchy
-        of its own (``python benchmarks/scale_3d.py`` times both set-ups).
+        coarse operators to A_l + r K_l (:mod:`admm_dolfinx.linalg.galerkin`).
+        Meanwhile the r* estimate preconditions its λ_max eigensolve with it, instead
+        of building a hierarchy of its own (``python benchmarks/scale_3d.py`` times both set-ups).
 
         Returns:
             The preconditioner (this operator's; valid until its next
