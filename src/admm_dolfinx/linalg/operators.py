@@ -112,8 +112,21 @@ class PenalisedOperator(FactorisedOperator):
         """
         if r == self.penalty:
             return
-        A = self.problem.A
-        K = self.problem.K if self._penalty_matrix is None else self._penalty_matrix
+        matrix = self._form(r)
+        with Timer("admm_dolfinx: factorisation"):
+            t0 = time.perf_counter()
+            self._ensure_ksp(matrix).setUp()
+            self.timings["factorization"] = time.perf_counter() - t0
+        self.penalty = float(r)
+        self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
+
+    def _penalty(self) -> PETSc.Mat:
+        """K: NᵀMN, or the matrix given to :meth:`use_penalty_matrix`."""
+        return self.problem.K if self._penalty_matrix is None else self._penalty_matrix
+
+    def _form(self, r: float) -> PETSc.Mat:
+        """Set :attr:`matrix` to A + rK (created on the first call) and return it."""
+        A, K = self.problem.A, self._penalty()
         with Timer("admm_dolfinx: operator A + rK"):
             t0 = time.perf_counter()
             if self.matrix is None:
@@ -126,12 +139,7 @@ class PenalisedOperator(FactorisedOperator):
             matrix = self.matrix
             matrix.axpy(r, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             self.timings["operator"] = time.perf_counter() - t0
-        with Timer("admm_dolfinx: factorisation"):
-            t0 = time.perf_counter()
-            self._ensure_ksp(matrix).setUp()
-            self.timings["factorization"] = time.perf_counter() - t0
-        self.penalty = float(r)
-        self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
+        return matrix
 
     def _ensure_ksp(self, matrix: PETSc.Mat) -> PETSc.KSP:
         """Create the KSP (factorising), or tell it that the matrix values changed.
@@ -236,21 +244,14 @@ class IterativeOperator(PenalisedOperator):
         """
         if r == self.penalty:
             return
-        K = self.problem.K if self._penalty_matrix is None else self._penalty_matrix
         coarse = self._coarse
         if coarse is None:
             super().set_penalty(r)
             pc = self._factorisation().getPC()
             if pc.getType() == PETSc.PC.Type.GAMG and _keeps_hierarchy(self._options):
-                self._coarse = CoarsePenalty(pc, K, r)
+                self._coarse = CoarsePenalty(pc, self._penalty(), r)
             return
-        A, matrix = self.problem.A, self.matrix
-        assert matrix is not None  # set up by the first call
-        with Timer("admm_dolfinx: operator A + rK"):
-            t0 = time.perf_counter()
-            A.copy(matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-            matrix.axpy(r, K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-            self.timings["operator"] = time.perf_counter() - t0
+        matrix = self._form(r)
         with Timer("admm_dolfinx: multigrid coarse operators A_l + r K_l"):
             t0 = time.perf_counter()
             coarse.move(matrix, r)
