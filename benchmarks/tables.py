@@ -4,9 +4,10 @@ Imported by the scripts in this folder (``python benchmarks/<script>.py`` puts t
 folder on ``sys.path``). Call on rank 0 only.
 
 A full run (no ``--quick``, ``--small`` or ``--only``) also writes the script's page
-of the book, ``docs/benchmarks/<script>.md``: every table it printed, the command that
-produced it, the date and the machine, and appends a line to ``CHANGELOG.md``. The
-pages are never edited by hand. ``ADMM_BENCHMARK_PAGE=0`` turns this off (the smoke
+of the book, ``docs/benchmarks/<script>.md``: every table it printed, each with the
+command that produced it, the date and the machine, and appends a line to
+``CHANGELOG.md``. Tables that an earlier run of another part of the script wrote stay
+on the page. The pages are never edited by hand. ``ADMM_BENCHMARK_PAGE=0`` turns this off (the smoke
 run of ``make test`` does).
 """
 
@@ -54,8 +55,40 @@ def _script() -> Path:
     return Path(sys.argv[0]).resolve()
 
 
+def _provenance(command: str, stamp: str, machine: str) -> str:
+    return f"Written by `{command}` on {stamp} ({machine})."
+
+
+def _existing_sections(page: Path) -> dict[str, str]:
+    """The sections of an existing page, in order, each with its provenance.
+
+    A section is ``## name`` and its body. Each body starts with the provenance line of
+    the run that wrote it; a body from a page written before sections carried their
+    own (one provenance line at the top of the page) gets that page's line.
+    """
+    if not page.exists():
+        return {}
+    text = page.read_text()
+    head, *sections = text.split("\n## ")
+    inherited = next((line for line in head.splitlines() if line.startswith("Written by `")), None)
+    if inherited is not None and not inherited.endswith(")."):
+        inherited = inherited.split("); ")[0] + ")."
+    kept = {}
+    for section in sections:
+        name, _, body = section.partition("\n")
+        body = body.strip("\n")
+        if inherited is not None and not body.startswith("Written by `"):
+            body = f"{inherited}\n\n{body}"
+        kept[name] = body
+    return kept
+
+
 def _write_page() -> None:
-    """The script's book page from the tables of this run (atexit; rank 0)."""
+    """The script's book page with the tables of this run (atexit; rank 0).
+
+    Tables of other runs of the script (``--part rule`` and ``--part calibrate``, say)
+    stay on the page, each with the command that wrote it.
+    """
     # a script that died of an uncaught exception (sys.last_exc / last_type set by the
     # interpreter) or called sys.exit with an error writes no page
     if not _tables or getattr(sys, "last_type", None) is not None:
@@ -70,25 +103,32 @@ def _write_page() -> None:
         command = f"mpiexec -n {size} {command}"
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     machine = f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    page = PAGES / f"{script.stem}.md"
+    written = [name for name, _ in _tables]
+    sections = _existing_sections(page)  # a rewritten table keeps its place
+    provenance = _provenance(command, stamp, machine)
+    for name, table in _tables:
+        sections[name] = f"{provenance}\n\n{table}"
     lines = [
         f"# {title}",
         "",
-        f"Written by `{command}` on {stamp} ({machine}); do not edit by hand: rerun the",
+        "Each table names the command that wrote it; do not edit by hand: rerun the",
         "command to refresh it.",
         "",
         "```text",
         doc,
         "```",
     ]
-    for name, table in _tables:
-        lines += ["", f"## {name}", "", table]
+    for name, body in sections.items():
+        lines += ["", f"## {name}", "", body]
     PAGES.mkdir(parents=True, exist_ok=True)
-    with atomic_file(PAGES / f"{script.stem}.md") as fh:
+    with atomic_file(page) as fh:
         fh.write("\n".join(lines) + "\n")
     changelog = ROOT / "CHANGELOG.md"
     if changelog.exists():
         with changelog.open("a") as fh:
-            fh.write(f"- {stamp}: `{command}` rewrote docs/benchmarks/{script.stem}.md\n")
+            tables = ", ".join(written)
+            fh.write(f"- {stamp}: `{command}` wrote {tables} in docs/benchmarks/{script.stem}.md\n")
 
 
 def print_and_save(rows: Sequence[dict], path: Path) -> None:
