@@ -18,7 +18,7 @@ anyway:
 * **μ_max** belongs to a short-wave mode at the edge of Γ_C, so it is computed like
   λ_min in :mod:`admm_dolfinx.penalty.lambda_min`, on a layer of cells along Γ_C with
   the rest of the body held fixed (stiffer than the body, so a lower bound, which
-  grows to μ_max with the layer): two rings (:data:`LAYER_RINGS`). SLEPc solves the
+  grows to μ_max with the layer): one ring (:data:`LAYER_RINGS`). SLEPc solves the
   layer's generalised problem Nᵀ(M + βL_Γ)N x = μ A_L x with a factorisation of A_L.
   Since M + βL_Γ ⪰ M, μ_max ≥ λ_max too, and the larger of the two bounds is taken:
   at small β the top of the μ spectrum may be a smooth mode, which a layer sees only
@@ -65,10 +65,11 @@ __all__ = ["LAMBDA_MIN_TOL", "SurfacePenalty", "estimate_surface_penalty"]
 logger = get_logger(__name__)
 
 #: Rings of cells of the layer on which μ_max is computed. Its mode is the roughest
-#: pattern at the edge of Γ_C: on every mesh of ``python benchmarks/surface_metric.py
-#: --part rule`` two rings give nearly the whole body's μ_max (the table prints the
-#: ratio); four rings cost more.
-LAYER_RINGS = 2
+#: pattern at the edge of Γ_C, and it lives in the first ring: ``python
+#: benchmarks/surface_metric.py --part rule`` prints the layer's μ_max over the whole
+#: body's on twelve meshes, and ``--part calibrate`` the iteration counts; more rings
+#: cost a larger layer factorisation for the same counts.
+LAYER_RINGS = 1
 #: b of β = b κ / k²_max (see the module docstring).
 BETA_FRACTION = 0.25
 #: m of μ_min ≈ m λ_max, for r (see the module docstring).
