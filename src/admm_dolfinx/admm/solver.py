@@ -78,6 +78,7 @@ from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import agree, collective_call
+from admm_dolfinx._threads import share_cores
 from admm_dolfinx.admm.anderson import AndersonMixer, weighted_norm
 from admm_dolfinx.admm.inexact import InexactRule
 from admm_dolfinx.admm.plan import SolverPlan, make_plan
@@ -177,6 +178,7 @@ class ADMMSolver:
             settings.replace(**options) if settings is not None else ADMMSettings.create(**options)
         )
         self.problem = problem
+        share_cores(problem.comm)  # ranks sharing a node: no oversubscribed BLAS threads
         self.operator: PenalisedOperator | CondensedOperator | None = None
         self.polisher: ActiveSetPolish | SparsePolish | None = None
         self._step: MassMetricStep | SurfaceMetricStep = MassMetricStep()
