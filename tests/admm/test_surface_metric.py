@@ -178,6 +178,35 @@ def test_same_solution_as_the_paper_metric(scene):
     assert surface.iterations < mass.iterations
 
 
+def test_projection_factorisations_take_options_under_their_own_prefix():
+    """The QP's free-set factorisations read ``<prefix>projection_``: a user's options
+    there (MUMPS with a METIS ordering, where one process would use PETSc's own
+    Cholesky) replace the defaults, with the same answer."""
+    from petsc4py import PETSc
+
+    problem = example3(level=1).problem(contact_normal="body")
+    with ADMMSolver(problem, rtol=1e-10) as solver:
+        default = solver.solve()
+        assert solver._step.projection._ksp.getOptionsPrefix() == "admm_projection_"
+    options = PETSc.Options()
+    chosen_options = {"pc_factor_mat_solver_type": "mumps", "mat_mumps_icntl_7": 5}
+    for key, value in chosen_options.items():
+        options[f"mine_projection_{key}"] = value
+    try:
+        with ADMMSolver(problem, rtol=1e-10, petsc_options_prefix="mine_") as solver:
+            chosen = solver.solve()
+            ksp = solver._step.projection._ksp
+            assert ksp.getOptionsPrefix() == "mine_projection_"
+            assert ksp.getPC().getFactorSolverType() == "mumps"
+            assert ksp.getPC().getFactorMatrix().getMumpsIcntl(7) == 5
+    finally:
+        for key in chosen_options:
+            options.delValue(f"mine_projection_{key}")
+    assert chosen.iterations == default.iterations
+    u_chosen, u_default = (_global(problem, r.u.x.array) for r in (chosen, default))
+    assert rel_diff(u_chosen, u_default) <= 1e-10
+
+
 @pytest.mark.parametrize(
     "scene",
     [

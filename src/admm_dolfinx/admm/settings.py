@@ -358,14 +358,17 @@ class ADMMSettings:
 
         ``step1`` (the factorisation or KSP of step 1), ``penalty`` (r*: ``dense_``,
         ``layer_``, ``lmin_``, ``lmax_``, ``amg_`` below it), ``surface`` (μ_max of the
-        surface metric), ``polish`` (sparse polishing's factorisations), ``schur`` (a
-        private condensed factorisation for r* and polishing).
+        surface metric), ``projection`` (the surface metric's step 2: the factorisations
+        of M + βL_Γ on the free contact nodes), ``polish`` (sparse polishing's
+        factorisations), ``schur`` (a private condensed factorisation for r* and
+        polishing).
         """
         p = self.petsc_options_prefix
         return {
             "step1": f"{p}step1_",
             "penalty": f"{p}penalty_",
             "surface": f"{p}surface_",
+            "projection": f"{p}projection_",
             "polish": f"{p}polish_",
             "schur": f"{p}schur_",
         }

@@ -274,7 +274,7 @@ class ADMMSolver:
                 )
                 beta = self.surface_penalty.beta
                 operator.use_penalty_matrix(self._metric.penalty_matrix(beta), "Nᵀ(M + βL_Γ)N")
-                self._step = SurfaceMetricStep(self._metric, beta)
+                self._step = SurfaceMetricStep(self._metric, beta, prefixes["projection"])
                 penalty = self.surface_penalty.r
             if isinstance(penalty, str):  # pragma: no cover - make_plan's invariant
                 raise RuntimeError(f"internal: no penalty was found for penalty={penalty!r}.")

@@ -60,14 +60,15 @@ class SurfaceMetricStep:
     Args:
         metric: The surface metric's operators.
         beta: β.
+        prefix: Options prefix of the QP's factorisations.
     """
 
     name = "surface"
 
-    def __init__(self, metric: SurfaceMetric, beta: float):
+    def __init__(self, metric: SurfaceMetric, beta: float, prefix: str = "admm_projection_"):
         self.metric = metric
         self.beta = float(beta)
-        self.projection = SurfaceProjection(metric, beta)
+        self.projection = SurfaceProjection(metric, beta, prefix)
 
     def reset(self, gap, rhs: PETSc.Vec, work: PETSc.Vec, r: float) -> None:
         """Start a solve: the QP's gap, and the Dirichlet lifting of rβ NᵀL_ΓN in ``rhs``."""

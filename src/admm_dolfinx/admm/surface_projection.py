@@ -49,14 +49,17 @@ class SurfaceProjection(PetscOwner):
     Args:
         metric: The surface metric.
         beta: β ≥ 0.
+        prefix: Options prefix of the free-set factorisations (a Cholesky KSP: MUMPS on
+            several processes, PETSc's own on one); options under it override these.
     """
 
     _petsc_objects = ("_ksp", "_sub", "_free_set", "_x", "_y", "R")
 
-    def __init__(self, metric: SurfaceMetric, beta: float):
+    def __init__(self, metric: SurfaceMetric, beta: float, prefix: str = "admm_projection_"):
         if not (math.isfinite(beta) and beta >= 0.0):
             raise ValueError(f"β must be finite and ≥ 0, got {beta!r}.")
         self.comm = metric.problem.comm
+        self.prefix = prefix
         self.beta = float(beta)
         mass = metric.problem.contact.mass
         self.mass = mass
@@ -115,6 +118,8 @@ class SurfaceProjection(PetscOwner):
             pc.setFactorSolverType("mumps")
         else:  # one process: PETSc's own sparse Cholesky, nested-dissection ordered
             pc.setFactorOrdering(PETSc.Mat.OrderingType.ND)
+        self._ksp.setOptionsPrefix(self.prefix)
+        self._ksp.setFromOptions()  # the user's options under the prefix win
         self._ksp.setUp()
         self._key = digest
         self.factorisations += 1
