@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from dolfinx import fem
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from admm_dolfinx import ADMMSolver, Ball
 from admm_dolfinx.admm.surface_projection import SurfaceProjection
@@ -116,6 +117,37 @@ def test_normal_stiffness_is_nt_l_n(scene):
         metric.destroy()
 
 
+def test_penalty_matrix_is_k_plus_beta_nt_l_n_on_the_contact_dofs_only():
+    """Nᵀ(M + βL_Γ)N = K + β NᵀL_ΓN on random vectors, stored on Γ_C's couplings only:
+    no more nonzeros than K and NᵀL_ΓN together (A's whole pattern made the multigrid's
+    coarse penalty products as dear as A's own)."""
+    problem = example3(level=1).problem(contact_normal="body")
+    metric = SurfaceMetric(problem)
+    beta = 0.37
+    matrix = metric.penalty_matrix(beta)
+    try:
+        rng = np.random.default_rng(3 + problem.comm.rank)
+        v = problem.create_vector()
+        v.array[:] = rng.standard_normal(v.array.size)
+        out, k_v, l_v = (problem.create_vector() for _ in range(3))
+        matrix.mult(v, out)
+        problem.K.mult(v, k_v)
+        metric.normal_stiffness.mult(v, l_v)
+        k_v.axpy(beta, l_v)
+        assert rel_diff(_global(problem, out.array), _global(problem, k_v.array)) <= 1e-13
+
+        def nonzeros(mat):
+            return int(mat.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+
+        assert nonzeros(matrix) <= nonzeros(problem.K) + nonzeros(metric.normal_stiffness)
+        assert nonzeros(matrix) < 0.5 * nonzeros(problem.A)
+        for vec in (v, out, k_v, l_v):
+            vec.destroy()
+    finally:
+        matrix.destroy()
+        metric.destroy()
+
+
 @pytest.mark.parametrize("beta", [0.0, 0.05, 1.0])
 def test_projection_solves_the_qp(beta):
     """Steps 2-3 meet the QP's KKT conditions; at β = 0 they are the paper's clamp."""
@@ -182,8 +214,6 @@ def test_projection_factorisations_take_options_under_their_own_prefix():
     """The QP's free-set factorisations read ``<prefix>projection_``: a user's options
     there (MUMPS with a METIS ordering, where one process would use PETSc's own
     Cholesky) replace the defaults, with the same answer."""
-    from petsc4py import PETSc
-
     problem = example3(level=1).problem(contact_normal="body")
     with ADMMSolver(problem, rtol=1e-10) as solver:
         default = solver.solve()

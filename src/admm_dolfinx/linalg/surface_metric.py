@@ -180,13 +180,15 @@ class SurfaceMetric(PetscOwner):
         return dense
 
     def penalty_matrix(self, beta: float) -> PETSc.Mat:
-        """Nᵀ(M + βL_Γ)N = K + β Nᵀ L_Γ N, in A's sparsity pattern (caller destroys it)."""
-        problem = self.problem
-        matrix = problem.A.duplicate(copy=False)
-        matrix.zeroEntries()
-        matrix.axpy(1.0, problem.K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        """Nᵀ(M + βL_Γ)N = K + β Nᵀ L_Γ N (caller destroys it).
+
+        Its sparsity pattern is that of K and Nᵀ L_Γ N, the couplings of the dofs on
+        Γ_C, a subset of A's: not A's whole pattern, which would make every product
+        with it (the multigrid's coarse penalties P_lᵀ K P_l) cost as much as with A.
+        """
+        matrix = self.problem.K.copy()
         matrix.axpy(
-            beta, self.normal_stiffness, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN
+            beta, self.normal_stiffness, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN
         )
         return matrix
 
