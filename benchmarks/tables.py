@@ -7,8 +7,9 @@ A full run (no ``--quick``, ``--small`` or ``--only``) also writes the script's 
 of the book, ``docs/benchmarks/<script>.md``: every table it printed, each with the
 command that produced it, the date and the machine, and appends a line to
 ``CHANGELOG.md``. Tables that an earlier run of another part of the script wrote stay
-on the page. The pages are never edited by hand. ``ADMM_BENCHMARK_PAGE=0`` turns this off (the smoke
-run of ``make test`` does).
+on the page; a table that no part writes any more goes with the page (delete it and
+rerun every part). The pages are never edited by hand. ``ADMM_BENCHMARK_PAGE=0`` turns
+this off (the smoke run of ``make test`` does).
 """
 
 from __future__ import annotations
@@ -59,17 +60,23 @@ def _provenance(command: str, stamp: str, machine: str) -> str:
     return f"Written by `{command}` on {stamp} ({machine})."
 
 
+_SECTION = "\x00"  # marks the section headings found after the docstring block
+
+
 def _existing_sections(page: Path) -> dict[str, str]:
     """The sections of an existing page, in order, each with its provenance.
 
-    A section is ``## name`` and its body. Each body starts with the provenance line of
-    the run that wrote it; a body from a page written before sections carried their
-    own (one provenance line at the top of the page) gets that page's line.
+    A section is ``## name`` and its body, after the script's docstring (whose fenced
+    block may hold any line). Each body starts with the provenance line of the run that
+    wrote it; a body from a page written before sections carried their own (one
+    provenance line at the top of the page) gets that page's line.
     """
     if not page.exists():
         return {}
     text = page.read_text()
-    head, *sections = text.split("\n## ")
+    fence = text.find("\n```\n", text.find("```text"))  # the docstring block's end
+    split = fence + len("\n```\n") if fence >= 0 else 0
+    head, *sections = (text[:split] + text[split:].replace("\n## ", _SECTION)).split(_SECTION)
     inherited = next((line for line in head.splitlines() if line.startswith("Written by `")), None)
     if inherited is not None and not inherited.endswith(")."):
         inherited = inherited.split("); ")[0] + ")."

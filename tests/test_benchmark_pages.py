@@ -67,3 +67,15 @@ def test_a_page_of_the_old_layout_keeps_its_provenance(tables, monkeypatch, tmp_
         "(x86_64, 2 cores, Python 3.12.1)."
     )
     assert "| 2 |" in cal
+
+
+def test_a_heading_inside_the_scripts_docstring_is_not_a_table(tables, monkeypatch, tmp_path):
+    page = tmp_path / "pages" / "demo_bench.md"
+    monkeypatch.setattr(
+        sys.modules["__main__"], "__doc__", "Demo.\n\n## not a table\n", raising=False
+    )
+    _run(tables, monkeypatch, ["--part", "rule"], [("bench rule", "| a |\n|---|\n| 1 |")])
+    _run(tables, monkeypatch, ["--part", "cal"], [("bench cal", "| b |\n|---|\n| 2 |")])
+    text = page.read_text()
+    assert text.count("## not a table") == 1 and text.count("```") == 2
+    assert text.index("## not a table") < text.index("```", text.index("```text") + 1)
