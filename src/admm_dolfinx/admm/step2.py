@@ -60,12 +60,12 @@ class SurfaceMetricStep:
     Args:
         metric: The surface metric's operators.
         beta: β.
-        prefix: Options prefix of the QP's factorisations.
+        prefix: Options prefix of the QP's factorisations (``ADMMSettings.prefixes``).
     """
 
     name = "surface"
 
-    def __init__(self, metric: SurfaceMetric, beta: float, prefix: str = "admm_projection_"):
+    def __init__(self, metric: SurfaceMetric, beta: float, prefix: str):
         self.metric = metric
         self.beta = float(beta)
         self.projection = SurfaceProjection(metric, beta, prefix)

@@ -50,12 +50,14 @@ class SurfaceProjection(PetscOwner):
         metric: The surface metric.
         beta: β ≥ 0.
         prefix: Options prefix of the free-set factorisations (a Cholesky KSP: MUMPS on
-            several processes, PETSc's own on one); options under it override these.
+            several processes, PETSc's own on one); options under it in PETSc's options
+            database override these (the solver's ``petsc_options`` are step 1's and do
+            not reach it).
     """
 
     _petsc_objects = ("_ksp", "_sub", "_free_set", "_x", "_y", "R")
 
-    def __init__(self, metric: SurfaceMetric, beta: float, prefix: str = "admm_projection_"):
+    def __init__(self, metric: SurfaceMetric, beta: float, prefix: str):
         if not (math.isfinite(beta) and beta >= 0.0):
             raise ValueError(f"β must be finite and ≥ 0, got {beta!r}.")
         self.comm = metric.problem.comm

@@ -180,11 +180,17 @@ class SurfaceMetric(PetscOwner):
         return dense
 
     def penalty_matrix(self, beta: float) -> PETSc.Mat:
-        """Nᵀ(M + βL_Γ)N = K + β Nᵀ L_Γ N (caller destroys it).
+        """Nᵀ(M + βL_Γ)N = K + β Nᵀ L_Γ N; collective.
 
         Its sparsity pattern is that of K and Nᵀ L_Γ N, the couplings of the dofs on
         Γ_C, a subset of A's: not A's whole pattern, which would make every product
         with it (the multigrid's coarse penalties P_lᵀ K P_l) cost as much as with A.
+
+        Args:
+            beta: β ≥ 0, the weight of the surface gradient.
+
+        Returns:
+            The matrix, in V's layout (the caller destroys it).
         """
         matrix = self.problem.K.copy()
         matrix.axpy(

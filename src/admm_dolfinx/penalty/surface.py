@@ -67,8 +67,8 @@ logger = get_logger(__name__)
 #: Rings of cells of the layer on which μ_max is computed. Its mode is the roughest
 #: pattern at the edge of Γ_C, and it lives in the first ring: ``python
 #: benchmarks/surface_metric.py --part rule`` prints the layer's μ_max over the whole
-#: body's on twelve meshes, and ``--part calibrate`` the iteration counts; more rings
-#: cost a larger layer factorisation for the same counts.
+#: body's, and ``--part calibrate`` the iteration counts; more rings cost a larger
+#: layer factorisation for the same counts.
 LAYER_RINGS = 1
 #: b of β = b κ / k²_max (see the module docstring).
 BETA_FRACTION = 0.25
@@ -209,7 +209,9 @@ def _largest_on_layer(problem, matrix, prefix, petsc_options):
         start = penalty.createVecRight()
         # unit diagonal scales: SLEPc's relative residual test is then unit-free
         a_scale = mean_diagonal(stiffness)
-        b_scale = abs(penalty.getDiagonal().max()[1])
+        diagonal = penalty.getDiagonal()
+        b_scale = abs(diagonal.max()[1])
+        diagonal.destroy()
         stiffness.scale(1.0 / a_scale)
         penalty.scale(1.0 / b_scale)
         start.set(0.0)  # N_Fᵀ of a partition-independent pseudo-random normal pattern
