@@ -23,6 +23,8 @@ def tables(tmp_path, monkeypatch):
     monkeypatch.setattr(module, "PAGES", tmp_path / "pages")
     monkeypatch.setattr(module, "_script", lambda: tmp_path / "demo_bench.py")
     (tmp_path / "CHANGELOG.md").write_text("# Changelog\n")
+    for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE"):  # the command as a serial run's
+        monkeypatch.delenv(name, raising=False)
     return module
 
 
