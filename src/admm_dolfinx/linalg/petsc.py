@@ -150,6 +150,9 @@ def unique_prefix(stem: str) -> str:
 def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator[None]:
     """Put ``options`` in PETSc's database under ``prefix`` for the ``with`` block only.
 
+    An entry the database held before (the user's ``-prefix_key value``) is overridden
+    inside the block and restored after it.
+
     Args:
         prefix: Options prefix.
         options: Option names without prefix (``{"pc_type": "lu"}``) and values;
@@ -157,6 +160,10 @@ def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator
     """
     opts = PETSc.Options()
     options = dict(options or {})
+    before = {  # "" for a flag
+        key: opts.getString(f"{prefix}{key}") if opts.hasName(f"{prefix}{key}") else None
+        for key in options
+    }
     for key, value in options.items():
         opts[f"{prefix}{key}"] = value
     try:
@@ -164,6 +171,8 @@ def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator
     finally:
         for key in options:
             del opts[f"{prefix}{key}"]
+            if before[key] is not None:
+                opts[f"{prefix}{key}"] = before[key]
 
 
 def apply_options(
