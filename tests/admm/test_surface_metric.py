@@ -239,6 +239,14 @@ def test_projection_factorisations_take_options_under_their_own_prefix():
     assert chosen.iterations == default.iterations
     u_chosen, u_default = (_global(problem, r.u.x.array) for r in (chosen, default))
     assert rel_diff(u_chosen, u_default) <= 1e-10
+    # an option PETSc cannot use there: a clear error on every rank, naming the prefix
+    options["bad_projection_pc_factor_mat_solver_type"] = "no_such_package"
+    try:
+        with ADMMSolver(problem, petsc_options_prefix="bad_") as solver:
+            with pytest.raises(RuntimeError, match="step 2.*bad_projection_"):
+                solver.solve()
+    finally:
+        options.delValue("bad_projection_pc_factor_mat_solver_type")
 
 
 @pytest.mark.parametrize(

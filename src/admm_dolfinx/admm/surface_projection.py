@@ -28,7 +28,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx.linalg.petsc import PetscOwner
+from admm_dolfinx.linalg.petsc import PetscOwner, apply_options
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
 
 __all__ = ["MAX_ACTIVE_SET_ROUNDS", "SurfaceProjection"]
@@ -37,6 +37,7 @@ __all__ = ["MAX_ACTIVE_SET_ROUNDS", "SurfaceProjection"]
 #: start it needs few (``result.projection`` counts them); it is finite for M-matrices
 #: and in practice for any mesh.
 MAX_ACTIVE_SET_ROUNDS = 100
+_WHAT = "the surface-metric projection (step 2: M + βL_Γ on the free contact nodes)"
 
 
 class SurfaceProjection(PetscOwner):
@@ -120,9 +121,8 @@ class SurfaceProjection(PetscOwner):
             pc.setFactorSolverType("mumps")
         else:  # one process: PETSc's own sparse Cholesky, nested-dissection ordered
             pc.setFactorOrdering(PETSc.Mat.OrderingType.ND)
-        self._ksp.setOptionsPrefix(self.prefix)
-        self._ksp.setFromOptions()  # the user's options under the prefix win
-        self._ksp.setUp()
+        # the user's options under the prefix win; a failure names the prefix
+        apply_options(self._ksp, self.prefix, {}, setup=True, what=_WHAT)
         self._key = digest
         self.factorisations += 1
 
