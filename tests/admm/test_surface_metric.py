@@ -243,7 +243,7 @@ def test_projection_factorisations_take_options_under_their_own_prefix():
     options["bad_projection_pc_factor_mat_solver_type"] = "no_such_package"
     try:
         with ADMMSolver(problem, petsc_options_prefix="bad_") as solver:
-            with pytest.raises(RuntimeError, match="step 2.*bad_projection_"):
+            with pytest.raises(RuntimeError, match=r"step 2.*bad_projection_"):
                 solver.solve()
     finally:
         options.delValue("bad_projection_pc_factor_mat_solver_type")
