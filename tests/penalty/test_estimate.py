@@ -80,6 +80,39 @@ def test_layers_stop_at_the_tolerance_asked(scene):
 
 
 @serial_only
+@pytest.mark.parametrize("scene", ["example3", "graded"])
+def test_fixed_rings_take_one_layer(scene):
+    """``lambda_min_rings`` computes λ_min on that one layer, with no growth check:
+    the value a growing run gets from its first layer (the same operator), an upper
+    bound of the whole body's λ_min (a layer is stiffer), and the one the solver's
+    surface metric uses for β, one factorisation where growth needs two."""
+    if scene == "graded":
+        problem = example3(level=0, h_bottom=0.06, h_top=0.6).problem(contact_normal="body")
+    else:
+        problem = example3(level=1).problem(contact_normal="body")
+    exact = algorithm5_eigenvalues(problem)[0]
+    one = estimate_penalty(problem, method="local", lambda_min_rings=1)
+    assert one.details["layers"] == 1 and one.details["layer_steps"] == 1
+    assert one.details["lambda_min_rings"] == 1
+    assert one.lambda_min <= exact * (1 + 1e-3)
+    assert one.lambda_min > 0.5 * exact
+    # a growth run whose tolerance cannot be met in two layers passes through ring 1
+    grown = estimate_penalty(problem, method="local", lambda_min_tol=1e-9)
+    assert grown.details["layer_steps"] >= 2
+    assert one.lambda_min < grown.lambda_min * (1 + 1e-3)
+    with ADMMSolver(problem) as solver:  # the 3D default: surface metric, local r*
+        assert solver.surface_penalty is not None
+        used = solver.penalty_estimate
+        assert used.details["layers"] == 1 and used.details["layer_steps"] == 1
+        assert used.lambda_min == pytest.approx(one.lambda_min, rel=1e-2)
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="lambda_min_rings"):
+            estimate_penalty(problem, method="local", lambda_min_rings=bad)
+    with pytest.raises(ValueError, match="give one of them"):
+        estimate_penalty(problem, method="local", lambda_min_rings=1, lambda_min_tol=0.1)
+
+
+@serial_only
 def test_rotated_reference_agrees_with_algorithm5():
     """The general (rotated) dense reference reproduces the literal Algorithm 5."""
     problem = example1(h=1 / 8).problem()

@@ -98,7 +98,7 @@ from admm_dolfinx.linalg.operators import IterativeOperator, PenalisedOperator
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
 from admm_dolfinx.penalty.estimate import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.penalty.surface import (
-    LAMBDA_MIN_TOL,
+    LAMBDA_MIN_RINGS,
     SurfacePenalty,
     estimate_surface_penalty,
 )
@@ -251,7 +251,7 @@ class ADMMSolver:
                     petsc_options_prefix=prefixes["penalty"],
                     multigrid=multigrid,
                     # the surface metric uses λ_min for β alone, which needs less
-                    lambda_min_tol=LAMBDA_MIN_TOL if plan.metric == "surface" else None,
+                    lambda_min_rings=LAMBDA_MIN_RINGS if plan.metric == "surface" else None,
                 )
                 penalty = self.penalty_estimate.r
             if plan.metric == "surface":

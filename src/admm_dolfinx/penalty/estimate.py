@@ -21,7 +21,8 @@ is the one entry point; the method is an explicit choice (``method``):
   through the multigrid's aggregates, dependent on the partition at that level.
   r* = 1/sqrt(λ_min λ_max) moves by half of λ_min's relative error, so r* to ``tol``
   needs λ_min to 2 ``tol`` only (the default of ``lambda_min_tol``); a caller that
-  needs λ_min for less (the surface metric's β) asks for less.
+  needs λ_min for less asks for less, or for one layer of ``lambda_min_rings`` rings
+  with no growth (the surface metric's β, calibrated with it).
 * ``"factorised"``: both ends by Krylov–Schur on operators applied with factorisations
   of the body (Â for the exact Schur complement, A + r_a NᵀMN for λ_max), in the
   solver's own operator so that the symbolic analysis is shared with step 1; exact
@@ -126,6 +127,7 @@ def estimate_penalty(
     petsc_options_prefix: str | None = None,
     multigrid: PETSc.PC | None = None,
     lambda_min_tol: float | None = None,
+    lambda_min_rings: int | None = None,
 ) -> PenaltyEstimate:
     """Compute r* = 1/sqrt(λ_min λ_max) with SLEPc on the contact dofs; collective.
 
@@ -151,17 +153,34 @@ def estimate_penalty(
         lambda_min_tol: The local method's tolerance on λ_min's layer truncation (two
             successive layers agree to it), in (0, 1); default ``min(2 tol, 0.5)``,
             which keeps r* within ``tol``.
+        lambda_min_rings: Instead of growing layers to ``lambda_min_tol``, the local
+            method's λ_min on the layer of this many rings alone: an upper bound of
+            λ_min with no check of its truncation error, for a caller that uses
+            λ_min roughly (the surface metric's β); r* is then not held to ``tol``.
 
     Returns:
         The estimate.
 
     Raises:
-        ValueError: For a tolerance outside (0, 1), ``max_it`` < 1 or an unknown method.
+        ValueError: For a tolerance outside (0, 1), ``max_it`` < 1, an unknown method,
+            or both ``lambda_min_tol`` and ``lambda_min_rings``.
         RuntimeError: If an eigenvalue solve does not converge.
     """
     if not (0.0 < tol < 1.0):
         raise ValueError(f"tol must lie in (0, 1), got {tol}.")
-    if lambda_min_tol is None:
+    if lambda_min_rings is not None:
+        if lambda_min_tol is not None:
+            raise ValueError(
+                "lambda_min_tol grows λ_min's layers to a tolerance, lambda_min_rings fixes "
+                "their number: give one of them."
+            )
+        if (
+            isinstance(lambda_min_rings, bool)
+            or not isinstance(lambda_min_rings, int | np.integer)
+            or lambda_min_rings < 1
+        ):
+            raise ValueError(f"lambda_min_rings must be an integer ≥ 1, got {lambda_min_rings!r}.")
+    elif lambda_min_tol is None:
         lambda_min_tol = min(2.0 * tol, 0.5)
     elif not (0.0 < lambda_min_tol < 1.0):
         raise ValueError(f"lambda_min_tol must lie in (0, 1), got {lambda_min_tol}.")
@@ -185,7 +204,16 @@ def estimate_penalty(
     if isinstance(operator, CondensedOperator):
         operator = None
     lambda_min, lambda_max, details = _iterative_extremes(
-        problem, method, tol, max_it, operator, prefix, petsc_options, multigrid, lambda_min_tol
+        problem,
+        method,
+        tol,
+        max_it,
+        operator,
+        prefix,
+        petsc_options,
+        multigrid,
+        lambda_min_tol,
+        lambda_min_rings,
     )
     return _finish(lambda_min, lambda_max, details, t_start)
 
@@ -199,7 +227,8 @@ def _iterative_extremes(
     prefix: str,
     petsc_options: dict | None,
     multigrid: PETSc.PC | None,
-    lambda_min_tol: float,
+    lambda_min_tol: float | None,
+    lambda_min_rings: int | None,
 ) -> tuple[float, float, dict[str, Any]]:
     """λ_min, λ_max and details by the ``"local"`` or ``"factorised"`` method; collective.
 
@@ -211,6 +240,7 @@ def _iterative_extremes(
     details: dict[str, Any] = {"method": method, "tol": tol, "m": space.m}
     if method == "local":
         details["lambda_min_tol"] = lambda_min_tol
+        details["lambda_min_rings"] = lambda_min_rings
     start = space.start_vector()
 
     def shared_operator() -> PenalisedOperator:
@@ -224,7 +254,14 @@ def _iterative_extremes(
             t0 = time.perf_counter()
             if method == "local":
                 lambda_min, info = lambda_min_from_layers(
-                    space, tol, max_it, prefix, petsc_options, start, lambda_min_tol
+                    space,
+                    tol,
+                    max_it,
+                    prefix,
+                    petsc_options,
+                    start,
+                    lambda_min_tol,
+                    rings=None if lambda_min_rings is None else int(lambda_min_rings),
                 )
             else:
                 lambda_min, info = lambda_min_exact(

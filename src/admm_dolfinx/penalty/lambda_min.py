@@ -168,7 +168,8 @@ def lambda_min_from_layers(
     prefix: str,
     options,
     start: PETSc.Vec,
-    layer_tol: float,
+    layer_tol: float | None,
+    rings: int | None = None,
 ) -> tuple[float, dict[str, Any]]:
     """λ_min from μ_max of the Schur complement of growing layers along Γ_C; collective.
 
@@ -178,6 +179,8 @@ def lambda_min_from_layers(
     (then S_L = S exactly). The value of the wider layer is returned; its truncation
     error is below the last change as long as the error at least halves per doubling
     of L (``tests/penalty/test_estimate.py`` checks λ_min against the dense pencil).
+    With ``rings`` instead, the layer of that many rings alone: an upper bound of
+    λ_min (S_L ≥ S) with no growth check, for a caller that needs λ_min roughly.
 
     Args:
         space: The contact space.
@@ -188,7 +191,9 @@ def lambda_min_from_layers(
         options: Options of the layer factorisations (MUMPS Cholesky by default).
         start: Start vector of the first layer (each wider layer starts from the
             previous eigenvector).
-        layer_tol: Relative agreement of two successive layers that ends the growth.
+        layer_tol: Relative agreement of two successive layers that ends the growth
+            (``None`` with ``rings``).
+        rings: Rings of the one layer to use, without growth (``None``: grow).
 
     Returns:
         λ_min and details (``layers``, ``layer_steps``, ``solves_min``, ``restarts_min``).
@@ -196,7 +201,7 @@ def lambda_min_from_layers(
     problem = space.problem
     bs = space.map.bs
     row0 = problem.A.getOwnershipRange()[0]
-    previous, layers, solves, steps = None, 1, 0, 0
+    previous, layers, solves, steps = None, rings or 1, 0, 0
     vec = None
     try:
         while True:
@@ -231,7 +236,12 @@ def lambda_min_from_layers(
             if vec is not None:
                 vec.destroy()
             vec = new  # warm start the next, wider layer
-            if whole or (previous is not None and abs(previous - mu) <= layer_tol * mu):
+            agree = (
+                previous is not None
+                and layer_tol is not None
+                and abs(previous - mu) <= layer_tol * mu
+            )
+            if whole or rings is not None or agree:
                 details = {
                     "layers": "all" if whole else layers,
                     "layer_steps": steps,

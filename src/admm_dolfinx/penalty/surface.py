@@ -60,7 +60,7 @@ from admm_dolfinx.penalty.estimate import PenaltyEstimate
 from admm_dolfinx.penalty.lambda_min import contact_layer
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["LAMBDA_MIN_TOL", "SurfacePenalty", "estimate_surface_penalty"]
+__all__ = ["LAMBDA_MIN_RINGS", "SurfacePenalty", "estimate_surface_penalty"]
 
 logger = get_logger(__name__)
 
@@ -78,11 +78,13 @@ MU_MIN_FRACTION = 0.125
 #: μ_max to a few digits, and a symmetric pencil's Ritz value is far more accurate than
 #: its residual (of the order of the residual's square over the gap).
 EIGEN_TOL = 1e-2
-#: The tolerance on λ_min that β needs (``lambda_min_tol`` of
-#: :func:`~admm_dolfinx.penalty.estimate.estimate_penalty`): λ_min enters β = b κ/k²_max
-#: alone, not r, and b was calibrated on a grid of factors of 2 (``python
-#: benchmarks/surface_metric.py --part calibrate``), far coarser than this.
-LAMBDA_MIN_TOL = 0.1
+#: Rings of the one layer whose λ_min β uses (``lambda_min_rings`` of
+#: :func:`~admm_dolfinx.penalty.estimate.estimate_penalty`, no growth check): the same
+#: layer as μ_max's. λ_min enters β = b κ/k²_max alone, not r, and b was calibrated
+#: with this λ_min on a grid of factors of 2 (``python benchmarks/surface_metric.py
+#: --part calibrate``), far coarser than a layer's truncation error; a wider layer
+#: costs a second layer factorisation for the same iteration counts.
+LAMBDA_MIN_RINGS = LAYER_RINGS
 
 
 @dataclass
