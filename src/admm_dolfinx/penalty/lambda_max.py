@@ -38,7 +38,6 @@ from slepc4py import SLEPc
 from admm_dolfinx.linalg.contact_space import ContactSpace
 from admm_dolfinx.linalg.petsc import (
     apply_options,
-    mean_diagonal,
     prepare_eigensolve,
     top_eigenpair,
 )
@@ -388,6 +387,52 @@ def largest_generalized_eigenpair(
             own.destroy()
 
 
+class _ShiftedStiffness:
+    """x ↦ (A + r_a K) x / b_scale, matrix-free: no copy of A (a MATSHELL context).
+
+    ``b_scale`` is the mean diagonal of A + r_a K, so that the operator has unit
+    diagonal size whatever the units.
+    """
+
+    def __init__(self, A: PETSc.Mat, K: PETSc.Mat):
+        self.A, self.K = A, K
+        self.work = A.createVecLeft()
+        self.diag_a, self.diag_k = A.getDiagonal(), K.getDiagonal()
+        self.r_a, self.scale = 0.0, 1.0
+
+    def matrix(self) -> PETSc.Mat:
+        """A new MATSHELL applying this operator (caller destroys it); collective."""
+        shell = PETSc.Mat().createPython(self.A.getSizes(), self, comm=self.A.getComm())
+        shell.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        shell.setOption(PETSc.Mat.Option.SPD, True)
+        shell.setUp()
+        return shell
+
+    def set_shift(self, r_a: float) -> float:
+        """Apply (A + r_a K)/b_scale from now on; returns b_scale; collective."""
+        self.r_a = r_a
+        self.work.waxpy(r_a, self.diag_k, self.diag_a)
+        self.scale = self.work.sum() / self.work.getSize()
+        return self.scale
+
+    def mult(self, mat, x, y):
+        """Apply y = (A + r_a K) x / b_scale."""
+        self.A.mult(x, y)
+        self.K.mult(x, self.work)
+        y.axpy(self.r_a, self.work)
+        y.scale(1.0 / self.scale)
+
+    def getDiagonal(self, mat, d):
+        """Set d = diag(A + r_a K) / b_scale (the MATSHELL interface)."""
+        d.waxpy(self.r_a, self.diag_k, self.diag_a)
+        d.scale(1.0 / self.scale)
+
+    def free(self):
+        """Free the work vectors."""
+        for vec in (self.work, self.diag_a, self.diag_k):
+            vec.destroy()
+
+
 def lambda_max_multigrid(
     space: ContactSpace,
     lambda_min: float,
@@ -398,13 +443,14 @@ def lambda_max_multigrid(
 ) -> tuple[float, dict[str, Any]]:
     """λ_max from LOBPCG + AMG on the full-space pencil K x = θ (A + r_a K) x; collective.
 
-    No factorisation: each iteration costs one AMG V-cycle per block vector. The
-    residual tolerance is tol (:data:`_MULTIGRID_TOL`). The multigrid aggregates
-    depend on the partition, so r* does too, at the level of the eigenvalue error.
-    The eigensolver reads options under ``{prefix}lmax_`` (its own multigrid ``{prefix}lmax_amg_``).
-    ``multigrid``: a multigrid of A set up already (the iterative step 1's, borrowed),
-    to precondition with instead of building one on A + r_a K (r_a λ_max ≤
-    :data:`_MAX_RA_LAMBDA` keeps the two spectrally equivalent).
+    No factorisation, and no copy of A: A + r_a K is applied matrix-free. Each
+    iteration costs one AMG V-cycle of A per block vector (A and A + r_a K are
+    spectrally equivalent, as r_a λ_max ≤ :data:`_MAX_RA_LAMBDA`). The residual
+    tolerance is tol (:data:`_MULTIGRID_TOL`). The multigrid aggregates depend on the
+    partition, so r* does too, at the level of the eigenvalue error. The eigensolver
+    reads options under ``{prefix}lmax_``. ``multigrid``: a multigrid of A set up
+    already (the iterative step 1's, borrowed); otherwise one is set up here on A
+    (options under ``{prefix}lmax_amg_``), once for every r_a tried.
 
     Raises:
         NeedsFactorisation: For a floating body (A is singular) or if LOBPCG did not
@@ -413,59 +459,63 @@ def lambda_max_multigrid(
     problem = space.problem
     if problem.rigid_motions.floating:
         raise NeedsFactorisation("the body has a rigid motion (A is singular)")
-    B = problem.A.duplicate(copy=True)
-    K_unit = problem.K.copy()
+    shifted = _ShiftedStiffness(problem.A, problem.K)
+    B = K_unit = own = None
     loads: list[PETSc.Vec] = []
+    counts: dict[str, float] = {}
     try:
-        B.setOption(PETSc.Mat.Option.SPD, True)
-        B.setNearNullSpace(problem.A.getNearNullSpace())  # duplicate() drops it
+        B = shifted.matrix()
+        K_unit = problem.K.copy()
         diagonal = K_unit.getDiagonal()
         k_scale = diagonal.max()[1]
         diagonal.destroy()
         K_unit.scale(1.0 / k_scale)
         loads = affine_pressure_loads(space)
-    except BaseException:
-        for obj in (B, K_unit, *loads):
-            obj.destroy()
-        raise
-    iterations = 0
-    counts: dict[str, float] = {}
+        if multigrid is None:
+            # one hierarchy on A for every r_a tried (spectrally equivalent to B)
+            t0 = time.perf_counter()
+            multigrid = own = PETSc.PC().create(comm=space.comm)
+            own.setOperators(problem.A)  # carries the rigid body modes
+            own.setType(PETSc.PC.Type.GAMG)
+            apply_options(own, prefix + "lmax_amg_", {})
+            own.setUp()
+            counts["multigrid_setup"] = time.perf_counter() - t0
+        iterations = 0
 
-    def top(r_a, rigid):
-        nonlocal iterations
-        problem.A.copy(B, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        B.axpy(r_a, problem.K, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        # SLEPc's relative residual test is not invariant under scaling of K and B
-        # separately: scale both to unit diagonal size, so that the iterations do not
-        # depend on the units (E, lengths). θ = θ̃ k_scale / b_scale.
-        b_scale = mean_diagonal(B)
-        B.scale(1.0 / b_scale)
-        theta, vec, its = largest_generalized_eigenpair(
-            K_unit,
-            B,
-            tol=tol * _MULTIGRID_TOL,
-            max_it=min(max_it, _MULTIGRID_MAX_IT),
-            prefix=prefix + "lmax_",
-            trial_loads=loads,
-            info=counts,
-            multigrid=multigrid,
-        )
-        iterations += its
-        return theta * k_scale / b_scale, vec, its
+        def top(r_a, rigid):
+            nonlocal iterations
+            # SLEPc's relative residual test is not invariant under scaling of K and B
+            # separately: scale both to unit diagonal size, so that the iterations do
+            # not depend on the units (E, lengths). θ = θ̃ k_scale / b_scale.
+            b_scale = shifted.set_shift(r_a)
+            theta, vec, its = largest_generalized_eigenpair(
+                K_unit,
+                B,
+                tol=tol * _MULTIGRID_TOL,
+                max_it=min(max_it, _MULTIGRID_MAX_IT),
+                prefix=prefix + "lmax_",
+                trial_loads=loads,
+                info=counts,
+                multigrid=multigrid,
+            )
+            iterations += its
+            return theta * k_scale / b_scale, vec, its
 
-    try:
-        lambda_max, info = _lambda_max_loop(lambda_min, top, [])
-    except RuntimeError as error:  # LOBPCG did not converge
-        raise NeedsFactorisation(str(error)) from error
+        try:
+            lambda_max, info = _lambda_max_loop(lambda_min, top, [])
+        except RuntimeError as error:  # LOBPCG did not converge
+            raise NeedsFactorisation(str(error)) from error
     finally:
-        for obj in (B, K_unit, *loads):
-            obj.destroy()
+        for obj in (B, K_unit, own, *loads):
+            if obj is not None:
+                obj.destroy()
+        shifted.free()
     info.update(
         solves_max=iterations * BLOCK_SIZE + int(counts.get("start_cycles", 0)),
         lobpcg_iterations=iterations,
         lambda_max_method="multigrid",
         time_multigrid_setup=counts.get("multigrid_setup", 0.0),
         # borrowed: its set-up is step 1's (Timings.factorization), not r*'s
-        multigrid_shared=multigrid is not None,
+        multigrid_shared=own is None,
     )
     return lambda_max, info
