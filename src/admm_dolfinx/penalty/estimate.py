@@ -146,7 +146,7 @@ def estimate_penalty(
             factorisation reused by the ADMM). A private one otherwise.
         petsc_options: Options of the factorisations (MUMPS Cholesky by default).
         petsc_options_prefix: Prefix (default ``"penalty_"``); sub-objects get
-            ``schur_``, ``dense_``, ``layer_``, ``lmin_``, ``lmax_``, ``amg_``.
+            ``schur_``, ``dense_``, ``layer_``, ``lmin_``, ``lmax_``, ``lmax_amg_``.
         multigrid: A multigrid preconditioner of A set up already (the iterative
             step 1's, :meth:`~admm_dolfinx.linalg.operators.IterativeOperator.set_up_hierarchy`)
             for the local method's λ_max, borrowed; it builds its own otherwise.
@@ -154,7 +154,7 @@ def estimate_penalty(
             successive layers agree to it), in (0, 1); default ``min(2 tol, 0.5)``,
             which keeps r* within ``tol``.
         lambda_min_rings: Instead of growing layers to ``lambda_min_tol``, the local
-            method's λ_min on the layer of this many rings alone: an upper bound of
+            method's λ_min on the layer of this many rings alone: a lower bound of
             λ_min with no check of its truncation error, for a caller that uses
             λ_min roughly (the surface metric's β); r* is then not held to ``tol``.
 

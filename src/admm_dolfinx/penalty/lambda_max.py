@@ -10,10 +10,10 @@ so some global solver is unavoidable, but it need not be a factorisation:
 
 * ``"local"`` (:func:`lambda_max_multigrid`): LOBPCG (Knyazev's locally optimal block
   preconditioned conjugate gradient, SLEPc ``EPSLOBPCG``) on the full-space pencil,
-  maximising xᵀKx / xᵀBx with one smoothed-aggregation AMG V-cycle of
-  B = A + r_a K (``PCGAMG``, with the rigid body modes that the problem attaches to A
-  as near null space) per block vector and iteration. It starts from the Ritz vectors
-  of the body's responses to affine normal pressures on Γ_C (a few
+  maximising xᵀKx / xᵀBx, B = A + r_a K applied matrix-free, with one
+  smoothed-aggregation AMG V-cycle of A (``PCGAMG``, with the rigid body modes that
+  the problem attaches to A as near null space) per block vector and iteration. It
+  starts from the Ritz vectors of the body's responses to affine normal pressures on Γ_C (a few
   multigrid-preconditioned CG steps each). No factorisation at all. Its Ritz value's
   error is of the order of the squared residual over the gap to the next eigenvalue,
   so the residual test is at the θ tolerance; with a nearly multiple top eigenvalue
@@ -331,7 +331,7 @@ def largest_generalized_eigenpair(
         multigrid: A preconditioner set up already that approximates B⁻¹ up to a
             scalar factor (the iterative step 1's, on A; LOBPCG and the start's CG
             are invariant under that factor); borrowed, not destroyed. Built here on
-            B otherwise.
+            B otherwise (B must then be assembled).
 
     Returns:
         θ, the eigenvector (caller destroys it) and the iteration count.
@@ -445,7 +445,8 @@ def lambda_max_multigrid(
 
     No factorisation, and no copy of A: A + r_a K is applied matrix-free. Each
     iteration costs one AMG V-cycle of A per block vector (A and A + r_a K are
-    spectrally equivalent, as r_a λ_max ≤ :data:`_MAX_RA_LAMBDA`). The residual
+    spectrally equivalent at the accepted r_a, for which r_a λ_max ≤
+    :data:`_MAX_RA_LAMBDA`). The residual
     tolerance is tol (:data:`_MULTIGRID_TOL`). The multigrid aggregates depend on the
     partition, so r* does too, at the level of the eigenvalue error. The eigensolver
     reads options under ``{prefix}lmax_``. ``multigrid``: a multigrid of A set up
@@ -459,11 +460,11 @@ def lambda_max_multigrid(
     problem = space.problem
     if problem.rigid_motions.floating:
         raise NeedsFactorisation("the body has a rigid motion (A is singular)")
-    shifted = _ShiftedStiffness(problem.A, problem.K)
-    B = K_unit = own = None
+    shifted = B = K_unit = own = None
     loads: list[PETSc.Vec] = []
     counts: dict[str, float] = {}
     try:
+        shifted = _ShiftedStiffness(problem.A, problem.K)
         B = shifted.matrix()
         K_unit = problem.K.copy()
         diagonal = K_unit.getDiagonal()
@@ -477,8 +478,11 @@ def lambda_max_multigrid(
             multigrid = own = PETSc.PC().create(comm=space.comm)
             own.setOperators(problem.A)  # carries the rigid body modes
             own.setType(PETSc.PC.Type.GAMG)
-            apply_options(own, prefix + "lmax_amg_", {})
-            own.setUp()
+            try:
+                apply_options(own, prefix + "lmax_amg_", {})
+                own.setUp()
+            except RuntimeError as error:  # as before: a factorisation instead
+                raise NeedsFactorisation(f"the multigrid of A failed: {error}") from error
             counts["multigrid_setup"] = time.perf_counter() - t0
         iterations = 0
 
@@ -509,7 +513,8 @@ def lambda_max_multigrid(
         for obj in (B, K_unit, own, *loads):
             if obj is not None:
                 obj.destroy()
-        shifted.free()
+        if shifted is not None:
+            shifted.free()
     info.update(
         solves_max=iterations * BLOCK_SIZE + int(counts.get("start_cycles", 0)),
         lobpcg_iterations=iterations,

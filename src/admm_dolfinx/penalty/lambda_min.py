@@ -198,6 +198,10 @@ def lambda_min_from_layers(
     Returns:
         λ_min and details (``layers``, ``layer_steps``, ``solves_min``, ``restarts_min``).
     """
+    if (layer_tol is None) == (rings is None):
+        raise ValueError("give one of layer_tol (grow the layers) and rings (one layer).")
+    if rings is not None and rings < 1:
+        raise ValueError(f"rings must be ≥ 1, got {rings}.")
     problem = space.problem
     bs = space.map.bs
     row0 = problem.A.getOwnershipRange()[0]
