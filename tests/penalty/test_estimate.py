@@ -51,6 +51,15 @@ def test_example3_against_algorithm5(level):
     assert loose.details["lobpcg_iterations"] <= 6
 
 
+def _layer_scene(scene):
+    """Example 3 (level 1) or a mesh graded towards Γ_C, and its dense λ_min."""
+    if scene == "graded":
+        problem = example3(level=0, h_bottom=0.06, h_top=0.6).problem(contact_normal="body")
+    else:
+        problem = example3(level=1).problem(contact_normal="body")
+    return problem, algorithm5_eigenvalues(problem)[0]
+
+
 @serial_only
 @pytest.mark.parametrize("scene", ["example3", "graded"])
 def test_layers_stop_at_the_tolerance_asked(scene):
@@ -60,11 +69,7 @@ def test_layers_stop_at_the_tolerance_asked(scene):
     layer. A looser tolerance stops at fewer rings, never more; on Example 3 and on
     a mesh graded towards Γ_C (elements 10x smaller on Γ_C than on the top face)
     both stop within 4 rings."""
-    if scene == "graded":
-        problem = example3(level=0, h_bottom=0.06, h_top=0.6).problem(contact_normal="body")
-    else:
-        problem = example3(level=1).problem(contact_normal="body")
-    exact = algorithm5_eigenvalues(problem)[0]
+    problem, exact = _layer_scene(scene)
     rings = []
     for lambda_min_tol in (0.02, 0.1):
         est = estimate_penalty(problem, method="local", lambda_min_tol=lambda_min_tol)
@@ -86,11 +91,7 @@ def test_fixed_rings_take_one_layer(scene):
     lower bound of the whole body's λ_min (a layer is stiffer), closer with more
     rings (the Schur complements decrease to the body's), and the one the solver's
     surface metric uses for β, one factorisation where growth needs two."""
-    if scene == "graded":
-        problem = example3(level=0, h_bottom=0.06, h_top=0.6).problem(contact_normal="body")
-    else:
-        problem = example3(level=1).problem(contact_normal="body")
-    exact = algorithm5_eigenvalues(problem)[0]
+    problem, exact = _layer_scene(scene)
     values = []
     for rings in (1, 2):
         est = estimate_penalty(problem, method="local", lambda_min_rings=rings)
