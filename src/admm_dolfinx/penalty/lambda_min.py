@@ -179,7 +179,7 @@ def lambda_min_from_layers(
     (then S_L = S exactly). The value of the wider layer is returned; its truncation
     error is below the last change as long as the error at least halves per doubling
     of L (``tests/penalty/test_estimate.py`` checks λ_min against the dense pencil).
-    With ``rings`` instead, the layer of that many rings alone: an upper bound of
+    With ``rings`` instead, the layer of that many rings alone: a lower bound of
     λ_min (S_L ≥ S) with no growth check, for a caller that needs λ_min roughly.
 
     Args:
