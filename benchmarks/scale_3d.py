@@ -24,7 +24,9 @@ KKT tolerance 1e-6 (``kkt``), and ``vs ref`` is ‖u − u_ref‖/‖u_ref‖ ag
 factorised ADMM (or SNES VI) at the same size, where one ran.
 
 Columns: seconds per phase (``mesh s``; ``assembly``; ``plan`` (MUMPS's analysis and the
-rest of the set-up); ``r*`` (the estimate and the surface metric's β, μ_max);
+rest of the set-up); ``r*`` (the estimate and the surface metric's β, μ_max; of it
+``λ_min s``, ``λ_max s`` with its ``λ_max V-cycles`` (the multigrid LOBPCG's start
+and iterations), and ``μ_max s``);
 ``step-1 setup`` (factorisation or multigrid set-up); ``step-1 solves`` and
 ``step 2+`` (the rest of the iterations: the surface QP on Γ_C, residuals)),
 ``total`` (all but the mesh), ADMM iterations, Krylov iterations of step 1, and the
@@ -124,6 +126,13 @@ def worker(case: str, config: str, out: str, quick: bool) -> None:
         surface = solver.surface_penalty.time if solver.surface_penalty else 0.0
         row["plan"] = setup - t.penalty - t.operator - t.factorization
         row["r*"] = t.penalty
+        # what r* is made of: λ_min (its layer), λ_max (and its V-cycles), μ_max
+        details = solver.penalty_estimate.details if solver.penalty_estimate else {}
+        row["λ_min s"] = details.get("time_min", "–")
+        row["λ_max s"] = details.get("time_max", "–")
+        if details.get("lambda_max_method") == "multigrid":
+            row["λ_max V-cycles"] = details["solves_max"]
+        row["μ_max s"] = surface if surface else "–"
         row["step-1 setup"] = t.operator + t.factorization
         row["step-1 solves"] = solver.operator.solve_time
         row["step 2+"] = t.iterations - solver.operator.solve_time

@@ -110,6 +110,35 @@ def test_the_plan_is_printable_before_a_solve(problem):
         assert solver.penalty_estimate.details["method"] == "factorised"
 
 
+def test_penalty_tolerance_follows_the_metric(problem):
+    """penalty_tol=None: 1e-2 for r* in the paper's metric, the looser surface-metric
+    tolerance where λ_min and λ_max only feed β and r; the eigensolves run at the
+    plan's tolerance; a given tolerance is kept in both; a given penalty has none."""
+    from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL
+    from admm_dolfinx.penalty.surface import SURFACE_PENALTY_TOL
+
+    assert ADMMSettings.create().penalty_tol is None
+    assert SURFACE_PENALTY_TOL > DEFAULT_PENALTY_TOL
+    with ADMMSolver(problem) as solver:
+        assert solver.plan.metric == "mass"
+        assert solver.plan.penalty_tol == DEFAULT_PENALTY_TOL
+    three = example3(MPI.COMM_WORLD, level=0).problem()
+    cases = (
+        ({}, "surface", SURFACE_PENALTY_TOL),
+        ({"penalty_metric": "mass"}, "mass", DEFAULT_PENALTY_TOL),
+        ({"penalty_tol": 0.05}, "surface", 0.05),
+        ({"penalty_metric": "mass", "penalty_tol": 0.05}, "mass", 0.05),
+    )
+    for options, metric, tol in cases:
+        with ADMMSolver(three, **options) as solver:
+            assert solver.plan.metric == metric
+            assert solver.plan.penalty_tol == tol
+            assert solver.penalty_estimate.details["tol"] == tol
+            assert f"(tol {tol:g})" in solver.plan.describe()
+    with ADMMSolver(three, penalty=1e6, penalty_metric="mass") as solver:
+        assert solver.plan.penalty == "given" and solver.plan.penalty_tol is None
+
+
 def test_update_settings_between_solves(problem):
     with ADMMSolver(problem, polish=False) as solver:
         loose = solver.solve()

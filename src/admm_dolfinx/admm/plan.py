@@ -13,7 +13,8 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   memory or more than :data:`FACTOR_FLOPS_LIMIT` operations (where the multigrid path
   is faster: ``python benchmarks/scale_3d.py`` measures both sides of it);
 * r*: dense (from the condensed factorisation), local (no factorisation of the body)
-  or factorised, unless the penalty is given;
+  or factorised, unless the penalty is given, and its eigenvalue tolerance (looser in
+  the surface metric, which uses λ_min and λ_max roughly);
 * polishing: dense (the compliance of Γ_C, where S_C is at hand), sparse (2D,
   factorisations of the body), or none;
 * the penalty metric: the paper's r M, or the surface metric r(M + βL_Γ) (3D).
@@ -29,6 +30,8 @@ from admm_dolfinx.admm.settings import ADMMSettings
 from admm_dolfinx.linalg.condensed import condensed_factor_applies
 from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
 from admm_dolfinx.linalg.petsc import is_factorisation, iterative_options
+from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL
+from admm_dolfinx.penalty.surface import SURFACE_PENALTY_TOL
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["FACTOR_FLOPS_LIMIT", "MEMORY_FRACTION", "SolverPlan", "make_plan"]
@@ -49,6 +52,8 @@ class SolverPlan:
     Attributes:
         step1: ``"condensed"``, ``"factorised"`` or ``"iterative"``.
         penalty: How r is found: ``"given"``, ``"dense"``, ``"local"``, ``"factorised"``.
+        penalty_tol: The eigenvalue tolerance of the iterative r* methods (None with
+            a given penalty).
         polish: ``"dense"``, ``"sparse"`` or ``"none"``.
         metric: ``"mass"`` or ``"surface"``.
         private_schur: A condensed factorisation is made for r* and polishing only
@@ -63,6 +68,7 @@ class SolverPlan:
 
     step1: str
     penalty: str
+    penalty_tol: float | None
     polish: str
     metric: str
     private_schur: bool
@@ -73,8 +79,9 @@ class SolverPlan:
 
     def describe(self) -> str:
         """One line: the choices and their reasons."""
+        tol = "" if self.penalty_tol is None else f" (tol {self.penalty_tol:g})"
         return (
-            f"step 1 {self.step1}, r* {self.penalty}, polish {self.polish}, "
+            f"step 1 {self.step1}, r* {self.penalty}{tol}, polish {self.polish}, "
             f"metric {self.metric} ({'; '.join(self.reasons)})"
         )
 
@@ -156,9 +163,15 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
             "penalty_method='dense' needs a MUMPS factorisation of the body condensed "
             "onto Γ_C; use penalty_method='local' or 'factorised'."
         )
+    penalty_tol = settings.penalty_tol
+    if penalty == "given":
+        penalty_tol = None
+    elif penalty_tol is None:
+        penalty_tol = SURFACE_PENALTY_TOL if metric == "surface" else DEFAULT_PENALTY_TOL
     return SolverPlan(
         step1=step1,
         penalty=penalty,
+        penalty_tol=penalty_tol,
         polish=polish,
         metric=metric,
         private_schur=bool(schur and not condensed),

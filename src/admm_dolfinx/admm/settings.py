@@ -139,7 +139,12 @@ class ADMMSettings:
             ``penalty_tol``, the same on any partition), or ``"auto"``: dense where the
             condensed factorisation is cheap (:mod:`admm_dolfinx.linalg.condensed`),
             local otherwise.
-        penalty_tol: Eigenvalue tolerance of the iterative r* methods.
+        penalty_tol: Eigenvalue tolerance of the iterative r* methods, in (0, 1), or
+            None: :data:`~admm_dolfinx.penalty.estimate.DEFAULT_PENALTY_TOL` for the
+            paper's metric, whose r is r*, and
+            :data:`~admm_dolfinx.penalty.surface.SURFACE_PENALTY_TOL` for the surface
+            metric, whose β and r take λ_min and λ_max through factors calibrated on a
+            grid of factors of 2 (``solver.plan.penalty_tol`` is the one used).
         penalty_metric: The norm of the penalty term: ``"mass"`` (the paper's r M),
             ``"surface"`` (r(M + βL_Γ), 3D), or ``"auto"`` (surface in 3D with an
             automatic penalty and no polishing, mass otherwise).
@@ -174,7 +179,7 @@ class ADMMSettings:
     anderson: int = PRESETS["accelerated"]["anderson"]
     stopping: str = PRESETS["accelerated"]["stopping"]
     penalty_method: str = "auto"
-    penalty_tol: float = 1e-2
+    penalty_tol: float | None = None
     penalty_metric: str = "auto"
     condensed: bool | None = None
     polish: bool | None = None
@@ -247,9 +252,14 @@ class ADMMSettings:
         anderson = _integer("anderson", values["anderson"])
         if anderson < 0:
             raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
-        penalty_tol = _real("penalty_tol", values.get("penalty_tol", 1e-2))
-        if not 0.0 < penalty_tol < 1.0:
-            raise ValueError(f"penalty_tol must lie in (0, 1), got {penalty_tol!r}.")
+        penalty_tol = values.get("penalty_tol")
+        if penalty_tol is not None:
+            penalty_tol = _real("penalty_tol", penalty_tol)
+            if not 0.0 < penalty_tol < 1.0:
+                raise ValueError(
+                    f"penalty_tol must lie in (0, 1) (or None: chosen by the metric), "
+                    f"got {penalty_tol!r}."
+                )
         penalty = values.get("penalty", "auto")
         if not (isinstance(penalty, str) and penalty == "auto"):
             penalty = check_penalty(penalty)

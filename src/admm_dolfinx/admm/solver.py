@@ -242,9 +242,10 @@ class ADMMSolver:
                 shared = schur_source or (
                     self.operator if plan.factor_options is not None else None
                 )
+                assert plan.penalty_tol is not None  # resolved whenever r* is computed
                 self.penalty_estimate = estimate_penalty(
                     problem,
-                    tol=s.penalty_tol,
+                    tol=plan.penalty_tol,
                     method=plan.penalty,
                     operator=shared,
                     petsc_options=plan.factor_options,

@@ -75,10 +75,12 @@ _MULTIGRID_TOL = 1.0
 #: costs two V-cycles per iteration (``python benchmarks/penalty_accuracy.py``
 #: measures λ_max against the dense pencil, on Example 3's symmetric block too).
 BLOCK_SIZE = 1
-#: Multigrid-preconditioned CG steps per trial load for LOBPCG's start: a single
-#: V-cycle per load leaves LOBPCG far from the top eigenvector on the 3D block on a
-#: ball (``python benchmarks/penalty_cost.py``).
-START_CG_STEPS = 4
+#: Multigrid-preconditioned CG steps per trial load for LOBPCG's start. A single
+#: V-cycle per load leaves LOBPCG far from the top eigenvector on the graded 3D block
+#: on a ball (many more LOBPCG iterations); four take more V-cycles in all than two,
+#: whose start LOBPCG finishes within a few iterations (``λ_max V-cycles`` of
+#: ``python benchmarks/scale_3d.py`` counts the start's and LOBPCG's together).
+START_CG_STEPS = 2
 
 
 class NeedsFactorisation(Exception):

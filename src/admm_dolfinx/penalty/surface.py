@@ -60,7 +60,12 @@ from admm_dolfinx.penalty.estimate import PenaltyEstimate
 from admm_dolfinx.penalty.lambda_min import contact_layer
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["LAMBDA_MIN_RINGS", "SurfacePenalty", "estimate_surface_penalty"]
+__all__ = [
+    "LAMBDA_MIN_RINGS",
+    "SURFACE_PENALTY_TOL",
+    "SurfacePenalty",
+    "estimate_surface_penalty",
+]
 
 logger = get_logger(__name__)
 
@@ -85,6 +90,13 @@ EIGEN_TOL = 1e-2
 #: --part calibrate``), far coarser than a layer's truncation error; a wider layer
 #: costs a second layer factorisation for the same iteration counts.
 LAMBDA_MIN_RINGS = LAYER_RINGS
+#: Eigenvalue tolerance of λ_min and λ_max (``penalty_tol``) when the surface metric
+#: uses them: they enter β = b κ/k²_max and r = 1/sqrt(m λ_max μ_max) through b and m,
+#: calibrated on a grid of factors of 2, so digits beyond the first buy nothing; at
+#: this tolerance λ_max's multigrid LOBPCG stops within a few iterations of its start.
+#: ``python benchmarks/surface_metric.py --part calibrate`` counts the iterations
+#: with it, ``python benchmarks/scale_3d.py`` times r* on the 3D ladder.
+SURFACE_PENALTY_TOL = 0.1
 
 
 @dataclass
