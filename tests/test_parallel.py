@@ -79,8 +79,9 @@ def test_parallel_surface_metric_matches_serial():
 
     At penalty_tol ≤ 1e-6 λ_min and λ_max come from factorisations (the multigrid λ_max
     of the default tolerance depends on the partition at the eigenvalue tolerance);
-    μ_max's layer solves start from a partition-independent vector. Step 2 runs on
-    rank 0 in rank order of the nodes, so only round-off differs.
+    μ_max's layer solves start from a partition-independent vector. Step 2's surface
+    QP is distributed, with the iterates of the serial method, so only round-off
+    differs.
     """
     from admm_dolfinx.scenes.library import example3
 
