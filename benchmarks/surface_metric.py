@@ -275,7 +275,7 @@ def growth(rows):
 #: (b, m) of β = b κ/k²_max and μ_min ≈ m λ_max (admm_dolfinx.penalty.surface); the
 #: first is the plain ADMM's choice, the default is among them.
 CALIBRATION_GRID = [(1.0, 0.5), (0.5, 0.5), (0.5, 0.25), (0.5, 0.125), (0.25, 0.25)]
-CALIBRATION_GRID += [(0.25, 0.125), (0.25, 0.0625), (0.125, 0.0625)]
+CALIBRATION_GRID += [(0.25, 0.15), (0.25, 0.125), (0.25, 0.0625), (0.125, 0.0625)]
 
 
 def calibration_meshes(quick: bool):

@@ -154,9 +154,10 @@ def estimate_penalty(
             successive layers agree to it), in (0, 1); default ``min(2 tol, 0.5)``,
             which keeps r* within ``tol``.
         lambda_min_rings: Instead of growing layers to ``lambda_min_tol``, the local
-            method's λ_min on the layer of this many rings alone: a lower bound of
-            λ_min with no check of its truncation error, for a caller that uses
-            λ_min roughly (the surface metric's β); r* is then not held to ``tol``.
+            method's λ_min on the layer of this many rings alone (0: the contact nodes
+            alone, the rest held fixed): a lower bound of λ_min with no check of its
+            truncation error, for a caller that uses λ_min roughly (the surface
+            metric's β); r* is then not held to ``tol``.
 
     Returns:
         The estimate.
@@ -177,9 +178,9 @@ def estimate_penalty(
         if (
             isinstance(lambda_min_rings, bool)
             or not isinstance(lambda_min_rings, int | np.integer)
-            or lambda_min_rings < 1
+            or lambda_min_rings < 0
         ):
-            raise ValueError(f"lambda_min_rings must be an integer ≥ 1, got {lambda_min_rings!r}.")
+            raise ValueError(f"lambda_min_rings must be an integer ≥ 0, got {lambda_min_rings!r}.")
     elif lambda_min_tol is None:
         lambda_min_tol = min(2.0 * tol, 0.5)
     elif not (0.0 < lambda_min_tol < 1.0):

@@ -117,7 +117,8 @@ def contact_layer(problem: Any, layers: int) -> tuple[np.ndarray, bool]:
 
     Args:
         problem: The contact problem.
-        layers: Number of rings of cells around the contact nodes.
+        layers: Number of rings of cells around the contact nodes (0: the contact
+            nodes alone).
 
     Returns:
         The sorted local node indices, and whether the layer is the whole mesh.
@@ -180,7 +181,9 @@ def lambda_min_from_layers(
     error is below the last change as long as the error at least halves per doubling
     of L (``tests/penalty/test_estimate.py`` checks λ_min against the dense pencil).
     With ``rings`` instead, the layer of that many rings alone: a lower bound of
-    λ_min (S_L ≥ S) with no growth check, for a caller that needs λ_min roughly.
+    λ_min (S_L ≥ S) with no growth check, for a caller that needs λ_min roughly;
+    ``rings=0`` is the contact nodes alone (every other node held fixed: S_0 is the
+    Schur complement of A's block on the contact nodes, a surface problem).
 
     Args:
         space: The contact space.
@@ -193,19 +196,19 @@ def lambda_min_from_layers(
             previous eigenvector).
         layer_tol: Relative agreement of two successive layers that ends the growth
             (``None`` with ``rings``).
-        rings: Rings of the one layer to use, without growth (``None``: grow).
+        rings: Rings of the one layer to use (≥ 0), without growth (``None``: grow).
 
     Returns:
         λ_min and details (``layers``, ``layer_steps``, ``solves_min``, ``restarts_min``).
     """
     if (layer_tol is None) == (rings is None):
         raise ValueError("give one of layer_tol (grow the layers) and rings (one layer).")
-    if rings is not None and rings < 1:
-        raise ValueError(f"rings must be ≥ 1, got {rings}.")
+    if rings is not None and rings < 0:
+        raise ValueError(f"rings must be ≥ 0, got {rings}.")
     problem = space.problem
     bs = space.map.bs
     row0 = problem.A.getOwnershipRange()[0]
-    previous, layers, solves, steps = None, rings or 1, 0, 0
+    previous, layers, solves, steps = None, 1 if rings is None else rings, 0, 0
     vec = None
     try:
         while True:
