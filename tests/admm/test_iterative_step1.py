@@ -6,15 +6,12 @@ from __future__ import annotations
 
 import itertools
 
-import numpy as np
 import pytest
-from mpi4py import MPI
 from petsc4py import PETSc
 
 import admm_dolfinx.admm.plan as plan_module
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver
 from admm_dolfinx.admm.inexact import TAU_FLOOR, InexactRule
-from admm_dolfinx.linalg.factor_estimate import mumps_estimate
 from admm_dolfinx.scenes import example1, example3
 
 pytestmark = pytest.mark.timeout(600)
@@ -176,31 +173,3 @@ def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):
         assert solver.plan.step1 == "iterative" and "available" in solver.plan.describe()
     with ADMMSolver(problem, step1="factorised") as solver:  # the user's choice stands
         assert solver.plan.step1 == "factorised"
-
-
-def test_mumps_estimate_matches_the_factorisation_it_predicts():
-    """MUMPS's analysis against the factorisation itself: the same operation count
-    (Cholesky of an SPD matrix: no pivoting changes it) and no more factor entries."""
-    problem = example3(level=1).problem()
-    estimate = mumps_estimate(problem.A)
-    assert estimate is not None and estimate.memory > 0 and estimate.flops > 0
-    B = problem.A.duplicate(copy=True)
-    B.setOption(PETSc.Mat.Option.SPD, True)
-    ksp = PETSc.KSP().create(problem.comm)
-    try:
-        ksp.setOperators(B)
-        ksp.setType("preonly")
-        ksp.getPC().setType("cholesky")
-        ksp.getPC().setFactorSolverType("mumps")
-        ksp.setUp()
-        factor = ksp.getPC().getFactorMatrix()
-        flops = factor.getMumpsRinfog(3)  # RINFOG(3): the elimination's operations
-        entries = factor.getMumpsInfog(29)  # INFOG(29): effective factor entries
-    finally:
-        ksp.destroy()
-        B.destroy()
-    assert flops == pytest.approx(estimate.flops, rel=0.05)
-    if entries > 0:
-        assert entries <= estimate.factor_entries * 1.05
-    assert MPI.COMM_WORLD.allreduce(estimate.flops, op=MPI.MAX) == estimate.flops  # global
-    assert np.isfinite(estimate.memory_per_process)

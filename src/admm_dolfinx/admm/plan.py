@@ -198,7 +198,7 @@ def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: d
         return False, "MUMPS factorisation"
     if problem.gdim != 3 or settings.condensed is True or settings.polish is True:
         return False, "MUMPS factorisation"
-    estimate = mumps_estimate(problem.A)
+    estimate = mumps_estimate(problem.A, prefix=settings.prefixes["estimate"])
     if estimate is None:
         return False, "MUMPS factorisation (no analysis available to compare)"
     # the smallest figure over the ranks: on one machine every rank sees the same total

@@ -371,7 +371,7 @@ class ADMMSettings:
         surface metric), ``projection`` (the surface metric's step 2: the factorisations
         of M + βL_Γ on the free contact nodes), ``polish`` (sparse polishing's
         factorisations), ``schur`` (a private condensed factorisation for r* and
-        polishing).
+        polishing), ``estimate`` (MUMPS's analysis, which the plan consults in 3D).
         """
         p = self.petsc_options_prefix
         return {
@@ -381,6 +381,7 @@ class ADMMSettings:
             "projection": f"{p}projection_",
             "polish": f"{p}polish_",
             "schur": f"{p}schur_",
+            "estimate": f"{p}estimate_",
         }
 
     def as_dict(self) -> dict[str, Any]:

@@ -24,7 +24,9 @@ from dataclasses import dataclass
 from mpi4py import MPI
 from petsc4py import PETSc
 
-__all__ = ["FactorEstimate", "available_memory", "mumps_estimate"]
+from admm_dolfinx.linalg.petsc import prefixed_options
+
+__all__ = ["PARALLEL_ANALYSIS", "FactorEstimate", "available_memory", "mumps_estimate"]
 
 #: PETSc's ``MAT_FACTOR_CHOLESKY`` (petscmat.h: NONE, LU, CHOLESKY, ...).
 _MAT_FACTOR_CHOLESKY = 2
@@ -72,21 +74,53 @@ def _library() -> ctypes.CDLL | None:
     return None
 
 
-def mumps_estimate(A: PETSc.Mat) -> FactorEstimate | None:
+#: The analysis under MPI: MUMPS's parallel analysis with PT-SCOTCH's ordering
+#: (ICNTL(28) = 2, ICNTL(29) = 1). The sequential analysis gathers the whole graph on
+#: one rank and orders it there, so it takes as long on two ranks as on one; the
+#: parallel one's ordering differs, and so do its estimates (the factorisation they
+#: predict is one with the same analysis: ``tests/admm/test_iterative_step1.py``).
+PARALLEL_ANALYSIS: dict[str, int] = {"mat_mumps_icntl_28": 2, "mat_mumps_icntl_29": 1}
+
+
+def mumps_estimate(A: PETSc.Mat, *, prefix: str = "factor_estimate_") -> FactorEstimate | None:
     """MUMPS's analysis of a Cholesky factorisation of the SPD matrix A; collective.
+
+    Under MPI the analysis is parallel (:data:`PARALLEL_ANALYSIS`, unless options
+    under ``prefix`` set those controls), and sequential if that fails (a MUMPS built
+    without PT-SCOTCH). A failed analysis (MUMPS's
+    ``INFOG(1) < 0``) gives None, never figures of zero.
 
     Args:
         A: The matrix (its values are not used: only its pattern is analysed).
+        prefix: Options prefix of the analysis: ``-{prefix}mat_mumps_icntl_7 5``
+            chooses its ordering, as for a factorisation.
 
     Returns:
-        The estimates, or None if PETSc's library or MUMPS is not available.
+        The estimates, or None if PETSc's library or MUMPS is not available, or the
+        analysis failed.
     """
     lib = _library()
     if lib is None:
         return None
+    comm = A.getComm().tompi4py()
+    database = PETSc.Options()
+    # the parallel analysis, unless the options under the prefix choose otherwise
+    parallel = {k: v for k, v in PARALLEL_ANALYSIS.items() if not database.hasName(prefix + k)}
+    attempts = [parallel, {}] if comm.size > 1 and parallel else [{}]
+    for options in attempts:
+        with prefixed_options(prefix, options):
+            estimate = _analyse(lib, A, prefix, comm)
+        if estimate is not None:
+            return estimate
+    return None
+
+
+def _analyse(lib: ctypes.CDLL, A: PETSc.Mat, prefix: str, comm) -> FactorEstimate | None:
+    """One analysis with the options in the database under ``prefix``; collective."""
     voidp = ctypes.c_void_p
     lib.MatGetFactor.argtypes = [voidp, ctypes.c_char_p, ctypes.c_int, ctypes.POINTER(voidp)]
     lib.MatFactorInfoInitialize.argtypes = [voidp]
+    lib.MatSetOptionsPrefix.argtypes = [voidp, ctypes.c_char_p]
     lib.MatCholeskyFactorSymbolic.argtypes = [voidp, voidp, voidp, voidp]
     int_type = ctypes.c_int64 if PETSc.IntType().itemsize == 8 else ctypes.c_int32
     lib.MatMumpsGetInfog.argtypes = [voidp, int_type, ctypes.POINTER(int_type)]
@@ -97,13 +131,13 @@ def mumps_estimate(A: PETSc.Mat) -> FactorEstimate | None:
     rows = PETSc.IS().createStride(A.getLocalSize()[0], A.getOwnershipRange()[0], 1, A.getComm())
     factor = voidp()
     info = (ctypes.c_double * 64)()  # MatFactorInfo: a few PetscReals, generously sized
-    comm = A.getComm().tompi4py()
     try:
         # a failure on any rank (no MUMPS in this PETSc, an error of the analysis) is
         # a failure on all, so that no rank waits in a collective call alone
         code = lib.MatGetFactor(voidp(pattern.handle), b"mumps", _MAT_FACTOR_CHOLESKY, factor)
         if comm.allreduce(bool(code), op=MPI.LOR):
             return None
+        lib.MatSetOptionsPrefix(factor, prefix.encode())  # read by the analysis
         lib.MatFactorInfoInitialize(info)
         code = lib.MatCholeskyFactorSymbolic(
             factor, voidp(pattern.handle), voidp(rows.handle), info
@@ -111,7 +145,7 @@ def mumps_estimate(A: PETSc.Mat) -> FactorEstimate | None:
         if comm.allreduce(bool(code), op=MPI.LOR):
             return None
         values = {}
-        for k in (16, 17, 20):
+        for k in (1, 16, 17, 20):
             out = int_type()
             lib.MatMumpsGetInfog(factor, k, ctypes.byref(out))
             values[k] = float(out.value)
@@ -122,6 +156,10 @@ def mumps_estimate(A: PETSc.Mat) -> FactorEstimate | None:
             lib.MatDestroy(ctypes.byref(factor))
         rows.destroy()
         pattern.destroy()
+    # INFOG is global (the same on every rank); PETSc leaves an analysis error to the
+    # numeric factorisation, which this never reaches
+    if comm.allreduce(values[1] < 0, op=MPI.LOR):
+        return None
     entries = values[20] if values[20] >= 0 else -values[20] * 1e6
     return FactorEstimate(
         memory=values[17] * 1e6,
