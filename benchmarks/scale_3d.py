@@ -291,9 +291,7 @@ def _compare_with_reference(args, case, results, rows) -> None:
     """``vs ref`` of this size's contact solves: the error against SNES VI's answer
     (active-set Newton with direct solves: exact once its active set is right) where it
     ran, else against the factorised ADMM's."""
-    reference = next(
-        (c for c in ("SNES VI", "factorised") if "total" in results.get(c, {})), None
-    )
+    reference = next((c for c in ("SNES VI", "factorised") if "total" in results.get(c, {})), None)
     if reference is None and results.get("default", {}).get("step 1") == "factorised":
         reference = "default"
     for row in rows:
