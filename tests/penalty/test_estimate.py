@@ -188,8 +188,9 @@ def test_auto_penalty_shares_one_symbolic_factorisation(method, tol, metric):
     method it is factorised once, at r* (λ_max by multigrid; each layer along Γ_C adds
     one small factorisation); with the factorised one also at r_a and for the exact
     Schur complement. The surface metric (the 3D default) adds one small factorisation
-    per layer of its μ_max and one of the surface QP per change of the contact set
-    (distributed), and factorises the body at its own r, with the same symbolic analysis."""
+    per layer of its μ_max, and for the surface QP (distributed) one symbolic
+    factorisation and a numeric one per change of the contact set; it factorises the
+    body at its own r, with the same symbolic analysis."""
     problem = example3(level=0).problem(contact_normal="body")
     sym0, num0 = _cholesky_counts()
     options = {"penalty_method": method, "penalty_tol": tol, "penalty_metric": metric}
@@ -202,12 +203,15 @@ def test_auto_penalty_shares_one_symbolic_factorisation(method, tol, metric):
     assert (surface is not None) == (metric == "surface")
     assert result.penalty == (estimate.r if surface is None else surface.r)
     steps = estimate.details["layer_steps"]
-    extra = 1 if surface else 0  # the layer of μ_max
-    if surface:  # step 2's QP: a sparse Cholesky per contact set (every rank takes part)
-        extra += result.projection["factorisations"]
+    extra_sym = extra_num = 1 if surface else 0  # the layer of μ_max
+    if surface:  # step 2's QP: one analysis, a numeric Cholesky per contact set
+        qp = result.projection["factorisations"]
+        assert qp > 1
+        extra_sym += 1
+        extra_num += qp
     assert (steps > 0) == (method == "local")
-    assert sym1 - sym0 == 2 + steps + extra
-    assert num1 - num0 == (1 if steps else 3) + steps + extra
+    assert sym1 - sym0 == 2 + steps + extra_sym
+    assert num1 - num0 == (1 if steps else 3) + steps + extra_num
     assert estimate.details["lambda_max_method"] == ("multigrid" if steps else "factorised")
     assert result.timings["penalty"] == pytest.approx(
         estimate.time + (surface.time if surface else 0.0), rel=1e-12

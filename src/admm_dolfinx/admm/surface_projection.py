@@ -10,7 +10,9 @@ Step 2 is no longer node-wise; it is a bound-constrained QP on the contact surfa
 (m unknowns, a sparse surface matrix), solved exactly by a primal-dual active-set
 method warm-started from the previous iteration's contact set: each round solves
 R̂_FF p_F = (R̂ q − R̂_FA g_A)_F on the free nodes F with one sparse Cholesky
-factorisation per change of the set. Everything is distributed over the ranks that own
+factorisation per change of the set, numeric only: R̂_FF is factorised inside R̂'s
+pattern (the active rows and columns reduced to their diagonal), so the ordering and
+symbolic factorisation are made once. Everything is distributed over the ranks that own
 contact nodes, in the layout of the contact m-vectors: R̂ = M + βL_Γ is an MPI matrix,
 the free-set solves are MUMPS's (PETSc's own Cholesky on one process), and the
 active-set test is agreed over the ranks. The iterates are those of the serial method,
@@ -28,7 +30,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx.linalg.petsc import PetscOwner, apply_options
+from admm_dolfinx.linalg.petsc import PetscOwner, apply_options, describe_petsc_error
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
 
 __all__ = ["MAX_ACTIVE_SET_ROUNDS", "SurfaceProjection"]
@@ -56,7 +58,7 @@ class SurfaceProjection(PetscOwner):
             not reach it).
     """
 
-    _petsc_objects = ("_ksp", "_sub", "_free_set", "_x", "_y", "R")
+    _petsc_objects = ("_ksp", "_free_matrix", "_x", "_y", "R")
 
     def __init__(self, metric: SurfaceMetric, beta: float, prefix: str):
         if not (math.isfinite(beta) and beta >= 0.0):
@@ -67,8 +69,7 @@ class SurfaceProjection(PetscOwner):
         mass = metric.problem.contact.mass
         self.mass = mass
         self._ksp: PETSc.KSP | None = None
-        self._sub: PETSc.Mat | None = None
-        self._free_set: PETSc.IS | None = None
+        self._free_matrix: PETSc.Mat | None = None
         #: R̂ = M + βL_Γ on the contact nodes (distributed like the m-vectors).
         self.R = metric.contact_laplacian.copy()
         self.R.scale(self.beta)
@@ -99,30 +100,54 @@ class SurfaceProjection(PetscOwner):
         return self._y.array.copy()
 
     def _factorise(self, free: npt.NDArray[np.intp]) -> None:
-        """Factorise R̂ on the free nodes, unless the free set is unchanged everywhere."""
+        """Factorise R̂ on the free nodes, unless the free set is unchanged everywhere.
+
+        The factorised matrix is R̂ with the rows and columns of the active nodes
+        replaced by their diagonal: R̂_FF on the free nodes, decoupled from the rest,
+        in R̂'s pattern whatever the set. So the ordering and symbolic factorisation are
+        made once per projection and each change of the set refactorises numerically.
+        """
         digest = hashlib.sha1(free.tobytes()).digest()
         changed = self.comm.allreduce(digest != self._key, op=MPI.LOR)
         if not changed:
             return
-        for obj in (self._ksp, self._sub, self._free_set):
-            if obj is not None:
-                obj.destroy()
-        self._free_set = PETSc.IS().createGeneral(
-            (self.start + free).astype(PETSc.IntType), comm=self.comm
-        )
-        self._sub = self.R.createSubMatrix(self._free_set, self._free_set)
-        self._sub.setOption(PETSc.Mat.Option.SPD, True)
-        self._ksp = PETSc.KSP().create(self.comm)
-        self._ksp.setOperators(self._sub)
-        self._ksp.setType(PETSc.KSP.Type.PREONLY)
-        pc = self._ksp.getPC()
-        pc.setType(PETSc.PC.Type.CHOLESKY)
-        if self.comm.size > 1:
-            pc.setFactorSolverType("mumps")
-        else:  # one process: PETSc's own sparse Cholesky, nested-dissection ordered
-            pc.setFactorOrdering(PETSc.Mat.OrderingType.ND)
-        # the user's options under the prefix win; a failure names the prefix
-        apply_options(self._ksp, self.prefix, {}, setup=True, what=_WHAT)
+        active = np.ones(self.diagonal.size, dtype=bool)
+        active[free] = False
+        first = self._ksp is None
+        if first:
+            self._free_matrix = self.R.duplicate(copy=True)
+            self._free_matrix.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
+            self._free_matrix.setOption(PETSc.Mat.Option.SPD, True)
+        else:
+            self.R.copy(self._free_matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        matrix = self._free_matrix
+        assert matrix is not None  # made on the first call
+        rows = (self.start + np.flatnonzero(active)).astype(PETSc.IntType)
+        matrix.zeroRowsColumns(rows, diag=1.0)
+        self._x.array[:] = self.diagonal  # active rows keep R̂'s scale
+        matrix.setDiagonal(self._x, addv=PETSc.InsertMode.INSERT_VALUES)
+        if first:
+            self._ksp = PETSc.KSP().create(self.comm)
+            self._ksp.setOperators(self._free_matrix)
+            self._ksp.setType(PETSc.KSP.Type.PREONLY)
+            pc = self._ksp.getPC()
+            pc.setType(PETSc.PC.Type.CHOLESKY)
+            if self.comm.size > 1:
+                pc.setFactorSolverType("mumps")
+            else:  # one process: PETSc's own sparse Cholesky, nested-dissection ordered
+                pc.setFactorOrdering(PETSc.Mat.OrderingType.ND)
+            # the user's options under the prefix win; a failure names the prefix
+            apply_options(self._ksp, self.prefix, {}, setup=True, what=_WHAT)
+        else:
+            assert self._ksp is not None
+            self._ksp.setOperators(self._free_matrix)  # new values, the same pattern
+            try:
+                self._ksp.setUp()
+            except PETSc.Error as error:
+                raise RuntimeError(
+                    f"PETSc could not factorise {_WHAT} (options prefix {self.prefix!r}): "
+                    f"{describe_petsc_error(error)}."
+                ) from error
         self._key = digest
         self.factorisations += 1
 
@@ -131,21 +156,17 @@ class SurfaceProjection(PetscOwner):
     ) -> npt.NDArray[np.float64]:
         """R̂_FF⁻¹ rhs on the free nodes (local parts); collective."""
         self._factorise(free)
-        ksp, sub = self._ksp, self._sub
-        assert ksp is not None and sub is not None  # made for this free set
-        b, x = sub.createVecs()
-        try:
-            b.array[:] = rhs
-            ksp.solve(b, x)
-            if ksp.getConvergedReason() < 0:
-                raise RuntimeError(
-                    "the surface-metric projection (step 2) failed: the factorisation of "
-                    "M + βL_Γ on the free nodes failed"
-                )
-            return x.array.copy()
-        finally:
-            b.destroy()
-            x.destroy()
+        ksp = self._ksp
+        assert ksp is not None  # made for this free set
+        self._x.set(0.0)
+        self._x.array[free] = rhs
+        ksp.solve(self._x, self._y)
+        if ksp.getConvergedReason() < 0:
+            raise RuntimeError(
+                "the surface-metric projection (step 2) failed: the factorisation of "
+                "M + βL_Γ on the free nodes failed"
+            )
+        return self._y.array[free].copy()
 
     def project(self, rq: npt.NDArray[np.float64]):
         """The minimiser p of ½ pᵀR̂p − pᵀ(R̂q) over p ≤ g, and μ = R̂(q − p) (0 off 𝒜)."""
