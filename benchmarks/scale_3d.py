@@ -213,7 +213,9 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="one small mesh")
     parser.add_argument("--out", default="out_benchmarks")
     parser.add_argument("--snes-limit", type=float, default=1200.0, help="seconds")
-    parser.add_argument("--mpi", action="store_true", help="the default under mpiexec -n 2")
+    parser.add_argument(
+        "--mpi", action="store_true", help="the default (and at TIGHT_RTOL) under mpiexec -n 2"
+    )
     parser.add_argument("--mpi-sizes", default="257k,1.2M")
     parser.add_argument(
         "--only", default=None, help="comma-separated sizes of the ladder (a partial run)"

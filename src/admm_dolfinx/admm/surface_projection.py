@@ -117,7 +117,6 @@ class SurfaceProjection(PetscOwner):
         if first:
             self._free_matrix = self.R.duplicate(copy=True)
             self._free_matrix.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
-            self._free_matrix.setOption(PETSc.Mat.Option.SPD, True)
         else:
             self.R.copy(self._free_matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         matrix = self._free_matrix
@@ -126,6 +125,7 @@ class SurfaceProjection(PetscOwner):
         matrix.zeroRowsColumns(rows, diag=1.0)
         self._x.array[:] = self.diagonal  # active rows keep R̂'s scale
         matrix.setDiagonal(self._x, addv=PETSc.InsertMode.INSERT_VALUES)
+        matrix.setOption(PETSc.Mat.Option.SPD, True)  # after the changes of values
         if first:
             self._ksp = PETSc.KSP().create(self.comm)
             self._ksp.setOperators(self._free_matrix)

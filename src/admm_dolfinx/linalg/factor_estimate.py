@@ -78,7 +78,9 @@ def _library() -> ctypes.CDLL | None:
 #: (ICNTL(28) = 2, ICNTL(29) = 1). The sequential analysis gathers the whole graph on
 #: one rank and orders it there, so it takes as long on two ranks as on one; the
 #: parallel one's ordering differs, and so do its estimates (the factorisation they
-#: predict is one with the same analysis: ``tests/admm/test_iterative_step1.py``).
+#: predict is one with the same analysis: ``tests/linalg/test_factor_estimate.py``).
+#: A factorised step 1 keeps MUMPS's default (sequential) analysis: the plan's figures
+#: are those of another ordering of the same matrix.
 PARALLEL_ANALYSIS: dict[str, int] = {"mat_mumps_icntl_28": 2, "mat_mumps_icntl_29": 1}
 
 
@@ -86,9 +88,9 @@ def mumps_estimate(A: PETSc.Mat, *, prefix: str = "factor_estimate_") -> FactorE
     """MUMPS's analysis of a Cholesky factorisation of the SPD matrix A; collective.
 
     Under MPI the analysis is parallel (:data:`PARALLEL_ANALYSIS`, unless options
-    under ``prefix`` set those controls), and sequential if that fails (a MUMPS built
-    without PT-SCOTCH). A failed analysis (MUMPS's
-    ``INFOG(1) < 0``) gives None, never figures of zero.
+    under ``prefix`` choose the kind of analysis), and sequential if that fails (a
+    MUMPS built without PT-SCOTCH). A failed analysis (MUMPS's ``INFOG(1) < 0``) gives
+    None, never figures of zero.
 
     Args:
         A: The matrix (its values are not used: only its pattern is analysed).
@@ -104,9 +106,11 @@ def mumps_estimate(A: PETSc.Mat, *, prefix: str = "factor_estimate_") -> FactorE
         return None
     comm = A.getComm().tompi4py()
     database = PETSc.Options()
-    # the parallel analysis, unless the options under the prefix choose otherwise
+    # the parallel analysis, unless the options under the prefix choose the kind of
+    # analysis (ICNTL(28)) themselves: then theirs alone, once
+    chosen = database.hasName(prefix + "mat_mumps_icntl_28")
     parallel = {k: v for k, v in PARALLEL_ANALYSIS.items() if not database.hasName(prefix + k)}
-    attempts = [parallel, {}] if comm.size > 1 and parallel else [{}]
+    attempts = [parallel, {}] if comm.size > 1 and not chosen else [{}]
     for options in attempts:
         with prefixed_options(prefix, options):
             estimate = _analyse(lib, A, prefix, comm)
@@ -137,7 +141,9 @@ def _analyse(lib: ctypes.CDLL, A: PETSc.Mat, prefix: str, comm) -> FactorEstimat
         code = lib.MatGetFactor(voidp(pattern.handle), b"mumps", _MAT_FACTOR_CHOLESKY, factor)
         if comm.allreduce(bool(code), op=MPI.LOR):
             return None
-        lib.MatSetOptionsPrefix(factor, prefix.encode())  # read by the analysis
+        code = lib.MatSetOptionsPrefix(factor, prefix.encode())  # read by the analysis
+        if comm.allreduce(bool(code), op=MPI.LOR):
+            return None
         lib.MatFactorInfoInitialize(info)
         code = lib.MatCholeskyFactorSymbolic(
             factor, voidp(pattern.handle), voidp(rows.handle), info

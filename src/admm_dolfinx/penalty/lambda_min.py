@@ -46,6 +46,7 @@ __all__ = [
     "contact_layer",
     "lambda_min_exact",
     "lambda_min_from_layers",
+    "layer_index_set",
 ]
 
 
@@ -144,6 +145,22 @@ def contact_layer(problem: Any, layers: int) -> tuple[np.ndarray, bool]:
     return nodes.astype(np.int32), total == Q.dofmap.index_map.size_global
 
 
+def layer_index_set(problem: Any, nodes: np.ndarray) -> PETSc.IS:
+    """The global dofs of a layer's nodes (:func:`contact_layer`), all bs per node.
+
+    Args:
+        problem: The contact problem.
+        nodes: Owned local node indices.
+
+    Returns:
+        A distributed index set of A's rows (the caller destroys it).
+    """
+    bs = problem.V.dofmap.index_map_bs
+    row0 = problem.A.getOwnershipRange()[0]
+    dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
+    return PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
+
+
 def _top_of_schur(space, schur, prefix, tol, max_it, start) -> tuple[float, PETSc.Vec, int]:
     """μ_max, its eigenvector (caller destroys it) and the restarts; collective."""
     mat = space.shell(schur)
@@ -207,14 +224,12 @@ def lambda_min_from_layers(
         raise ValueError(f"rings must be ≥ 0, got {rings}.")
     problem = space.problem
     bs = space.map.bs
-    row0 = problem.A.getOwnershipRange()[0]
     previous, layers, solves, steps = None, 1 if rings is None else rings, 0, 0
     vec = None
     try:
         while True:
             steps += 1
             nodes, whole = contact_layer(problem, layers)
-            dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
             nodal = NodalMap(
                 np.searchsorted(nodes, problem.contact.nodes),
                 problem.contact.free_normals,
@@ -223,7 +238,7 @@ def lambda_min_from_layers(
             )
             index_set = A_layer = hat = solver = schur = None
             try:
-                index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=space.comm)
+                index_set = layer_index_set(problem, nodes)
                 A_layer = problem.A.createSubMatrix(index_set, index_set)
                 hat = projected_stiffness(A_layer, nodal)
                 solver = _LayerSolver(hat, prefix + "layer_", options)

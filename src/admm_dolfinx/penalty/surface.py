@@ -46,7 +46,6 @@ from typing import Any
 
 import numpy as np
 from dolfinx.common import Timer
-from petsc4py import PETSc
 from slepc4py import SLEPc
 
 from admm_dolfinx._logging import get_logger
@@ -59,7 +58,7 @@ from admm_dolfinx.linalg.petsc import (
 )
 from admm_dolfinx.linalg.surface_metric import SurfaceMetric
 from admm_dolfinx.penalty.estimate import PenaltyEstimate
-from admm_dolfinx.penalty.lambda_min import contact_layer
+from admm_dolfinx.penalty.lambda_min import contact_layer, layer_index_set
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = [
@@ -73,9 +72,9 @@ logger = get_logger(__name__)
 
 #: Rings of cells of the layer on which μ_max is computed: none, the contact nodes
 #: alone with the rest of the body held fixed. The bound it gives falls short of the
-#: body's μ_max by a factor that varies little from mesh to mesh, and b and m are
-#: calibrated with it: ``python benchmarks/surface_metric.py --part rule`` prints the
-#: layer's μ_max over the whole body's, ``--part calibrate`` the iteration counts. A
+#: body's μ_max, and b and m are calibrated with it: ``python
+#: benchmarks/surface_metric.py --part rule`` prints the layer's μ_max over the whole
+#: body's, ``--part calibrate`` the iteration counts. A
 #: ring of cells costs a factorisation of a volume layer (on a mesh graded towards
 #: Γ_C, the largest part of r*: ``python benchmarks/scale_3d.py``) for the same
 #: counts.
@@ -83,7 +82,7 @@ LAYER_RINGS = 0
 #: b of β = b κ / k²_max (see the module docstring).
 BETA_FRACTION = 0.25
 #: m of μ_min ≈ m λ_max, for r (see the module docstring); calibrated with the
-#: zero-ring μ_max, whose shortfall it absorbs.
+#: zero-ring μ_max.
 MU_MIN_FRACTION = 0.15
 #: Residual tolerance of the layer's eigenvalue solve. r = 1/sqrt(m λ_max μ_max) needs
 #: μ_max to a few digits, and a symmetric pencil's Ritz value is far more accurate than
@@ -93,8 +92,7 @@ EIGEN_TOL = 1e-2
 #: :func:`~admm_dolfinx.penalty.estimate.estimate_penalty`, no growth check): the same
 #: layer as μ_max's, a lower bound of λ_min. λ_min enters β = b κ/k²_max alone, not r,
 #: and b was calibrated with this λ_min on a grid of factors of 2 (``python
-#: benchmarks/surface_metric.py --part calibrate``), coarser than the bound's shortfall
-#: and its variation between meshes.
+#: benchmarks/surface_metric.py --part calibrate``).
 LAMBDA_MIN_RINGS = LAYER_RINGS
 #: Eigenvalue tolerance of λ_min and λ_max (``penalty_tol``) when the surface metric
 #: uses them: they enter β = b κ/k²_max and r = 1/sqrt(m λ_max μ_max) through b and m,
@@ -116,7 +114,8 @@ class SurfacePenalty:
         k_max_squared: Largest eigenvalue of L_Γ x = k² M x.
         estimate: The paper's pencil's estimate (λ_min, λ_max) that β and r use.
         time: Seconds for L_Γ, k²_max and μ_max (the paper's estimate excluded).
-        details: ``layers`` (rings of the layer, or "all"), ``restarts`` (of
+        details: ``layers`` (rings of the layer, "all", or None where L_Γ vanishes and
+            no layer was solved), ``restarts`` (of
             Krylov–Schur).
     """
 
@@ -179,7 +178,7 @@ def estimate_surface_penalty(
             k_max_squared=k2,
             estimate=estimate,
             time=time.perf_counter() - t0,
-            details={"layers": 0, "restarts": 0},
+            details={"layers": None, "restarts": 0},  # no layer solved
         )
     with Timer("admm_dolfinx: surface penalty"):
         beta = BETA_FRACTION * estimate.condition_number / k2
@@ -218,12 +217,10 @@ def _largest_on_layer(problem, matrix, prefix, petsc_options):
     """μ_max of (matrix, A) on a layer of LAYER_RINGS rings of cells along Γ_C."""
     c = problem.contact
     bs = problem.V.dofmap.index_map_bs
-    row0 = problem.A.getOwnershipRange()[0]
     nodes, whole = contact_layer(problem, LAYER_RINGS)
-    dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
     index_set = stiffness = penalty = start = None
     try:
-        index_set = PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
+        index_set = layer_index_set(problem, nodes)
         stiffness = problem.A.createSubMatrix(index_set, index_set)
         penalty = matrix.createSubMatrix(index_set, index_set)
         start = penalty.createVecRight()
