@@ -4,8 +4,9 @@ Every automatic choice of the package is made here, once, before the first solve
 the plan says what it chose and why (``solver.plan.describe()``, printed by
 ``summary()``):
 
-* step 1: a factorisation of A condensed onto Γ_C (2D, one process, where the dense
-  work is cheap: :func:`~admm_dolfinx.linalg.condensed.condensed_factor_applies`), a
+* step 1: a factorisation of A condensed onto Γ_C (2D or a 3D body held by the
+  contact alone, one process, where the dense work is cheap:
+  :func:`~admm_dolfinx.linalg.condensed.condensed_factor_applies`), a
   factorisation of A + rK, or conjugate gradients with multigrid (an inexact ADMM).
   In 3D, with ``step1="auto"`` and no solver options, MUMPS's analysis
   (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) decides: multigrid if
@@ -148,6 +149,12 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     ):
         metric = "surface"
         reasons.append("3D: the surface metric keeps the iteration count flat")
+    if metric == "surface" and condensed and settings.condensed is None:
+        # the surface metric penalises with Nᵀ(M + βL_Γ)N, which a step 1 condensed onto
+        # the metric M cannot: A + rK is factorised, and S_C (if polishing wants it)
+        # comes from a private condensed factorisation
+        condensed, step1 = False, "factorised"
+        schur = polish == "dense"
     if not auto:
         penalty = "given"
     elif settings.penalty_method != "auto":

@@ -149,9 +149,11 @@ class ADMMSettings:
             ``"surface"`` (r(M + βL_Γ), 3D), or ``"auto"`` (surface in 3D with an
             automatic penalty and no polishing, mass otherwise).
         condensed: Step 1 through one factorisation of A condensed onto Γ_C (None:
-            where it also gives r*, i.e. 2D, one process, ``penalty="auto"``).
-        polish: Active-set polishing (None: in 2D with ``penalty="auto"`` and a
-            factorised step 1; True also in 3D; False: never).
+            where it also gives r*, i.e. 2D or a floating 3D body whose S_C is cheap,
+            one process, ``penalty="auto"``, and not with the surface metric).
+        polish: Active-set polishing (None: with ``penalty="auto"`` and a factorised
+            step 1, in 2D, and in 3D for a body that the contact alone holds, where
+            S_C is cheap; True also in 3D; False: never).
         polish_rounds: New primal-dual active-set corrections per dense polishing
             attempt (an attempt that joins an earlier walk resumes it).
         step1: How step 1 solves with A + rK: ``"factorised"`` (MUMPS Cholesky, one

@@ -106,10 +106,15 @@ def condensed_ordering(problem: ContactProblem, options: Mapping[str, Any] | Non
 def condensed_factor_applies(
     problem: ContactProblem, options: Mapping[str, Any] | None, *, any_dimension: bool = False
 ) -> bool:
-    """Whether :class:`CondensedOperator` applies (MUMPS; by default 2D, dense work cheap).
+    """Whether :class:`CondensedOperator` applies (MUMPS; by default where it pays).
 
-    By default: 2D, at most :data:`MAX_CONDENSED_CONTACT_NODES` contact nodes, and
-    m³ ≤ :data:`DENSE_COST_RATIO` · n^{3/2} (n the number of dofs).
+    By default: a 2D body, or a 3D body that the contact alone holds (a floating rigid
+    motion), with at most :data:`MAX_CONDENSED_CONTACT_NODES` contact nodes and
+    m³ ≤ :data:`DENSE_COST_RATIO` · n^{3/2} (n the number of dofs). A 3D body held
+    elsewhere converges in a few iterations of the surface metric, where S_C of a
+    surface costs more than it saves; a floating one, unpolished, builds its contact
+    zone a few nodes per iteration (``python benchmarks/hertz_validation.py`` counts
+    the iterations on the Hertz sphere, polished below the size limit and not above).
 
     Args:
         problem: The contact problem.
@@ -124,7 +129,7 @@ def condensed_factor_applies(
     m = problem.contact.num_global
     n = problem.V.dofmap.index_map.size_global * problem.V.dofmap.index_map_bs
     return (
-        problem.gdim == 2
+        (problem.gdim == 2 or problem.rigid_motions.floating > 0)
         and m <= MAX_CONDENSED_CONTACT_NODES
         and float(m) ** 3 <= DENSE_COST_RATIO * float(n) ** 1.5
     )
