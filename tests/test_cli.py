@@ -66,6 +66,15 @@ def test_run_3d_penalty_metric(tmp_path_factory, metric):
     assert data["plan"].endswith(")") and ("metric surface" in data["plan"]) == (metric == "auto")
 
 
+def test_run_polish_on_request_in_3d(tmp_path_factory):
+    tmp = _shared_tmp(tmp_path_factory, "polish")
+    argv = ["run", "example3", "--level", "0", "--polish", "--json", str(tmp / "s.json")]
+    assert main(argv) == 0
+    data = json.loads((tmp / "s.json").read_text())
+    assert "polish dense" in data["plan"] and data["converged"]
+    assert max(data["kkt"].values()) <= 1e-10  # polished: exact, not merely at rtol
+
+
 def test_output_folder_writes_nothing_on_failure(tmp_path_factory):
     tmp = _shared_tmp(tmp_path_factory, "atomic")
     target = tmp / "result"

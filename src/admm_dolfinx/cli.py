@@ -69,8 +69,8 @@ def cmd_run(args) -> int:
             "max_iter": args.max_iter,
             "petsc_options_prefix": "run_",
         }
-        if args.no_polish:
-            options["polish"] = False
+        if args.polish is not None:
+            options["polish"] = args.polish
         if args.penalty_metric != "auto":
             options["penalty_metric"] = args.penalty_metric
         with ADMMSolver(problem, **options) as solver:
@@ -182,9 +182,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--rtol", type=float, default=None, help="stopping tolerance (default: the mode's)"
     )
     run.add_argument("--max-iter", type=int, default=1000, help="iteration cap")
-    run.add_argument(
+    polish = run.add_mutually_exclusive_group()
+    polish.add_argument(
+        "--polish",
+        dest="polish",
+        action="store_const",
+        const=True,
+        default=None,
+        help="finish with active-set polishing on the dense Schur complement onto the "
+        "contact dofs, in 3D too (one process; by default only in 2D, where it is cheap)",
+    )
+    polish.add_argument(
         "--no-polish",
-        action="store_true",
+        dest="polish",
+        action="store_const",
+        const=False,
         help="do not finish with active-set polishing (on by default where the Schur "
         "complement onto the contact dofs is at hand: 2D)",
     )
