@@ -1,15 +1,20 @@
-"""What active-set polishing costs and saves in 3D: Example 3, default against polish=True.
+"""What active-set polishing costs and saves in 3D: polish=False against polish=True.
 
-In 2D the solver polishes by default; in 3D it does not, because polishing needs the
-dense Schur complement S_C of A onto the contact *surface*, whose factorisation costs
-more than A + r*NᵀMN's. For each mesh, in one run:
+In 2D the solver polishes by default. In 3D polishing needs the dense Schur complement
+S_C of A onto the contact *surface*, whose factorisation costs more than A + r*NᵀMN's;
+the default polishes only a body that the contact alone holds (a floating one, below
+the dense-work limit of :func:`admm_dolfinx.linalg.condensed.condensed_factor_applies`).
+Two scenes: Example 3 (``--scene example3``, held by its top face; the paper's
+contact model) and the Hertz sphere (``--scene hertz_sphere``, floating; the
+obstacle's normal). For each mesh, in one run:
 
-* the 3D default: r* by the iterative estimate, β and r of the surface metric
+* ``polish=False``: r* by the iterative estimate (dense for the floating sphere, where
+  S_C is cheap), β and r of the surface metric
   (:mod:`admm_dolfinx.linalg.surface_metric`), one factorisation of A + rNᵀ(M + βL_Γ)N,
   accelerated ADMM to the default tolerance (1e-6);
 * ``polish=True``: one factorisation of A condensed onto Γ_C, which gives r* densely,
   the compliance G and every step-1 solve; ADMM with active-set polishing;
-* a plain linear-elastic solve of A + rNᵀMN (factorisation + 1 solve, the default's r);
+* a plain linear-elastic solve of A + rNᵀMN (factorisation + 1 solve, the first's r);
 * on one process, the other exact route to the dense compliance: the C × C block of
   (A + r*NᵀMN)⁻¹ read off the plain factors by MUMPS's selected inverse entries,
   next to what the condensed factorisation costs beyond the plain one.
@@ -21,12 +26,13 @@ twice, since PETSc solves with a Schur complement on one process only: A + r*N�
 the ADMM, and the condensed factorisation for r* and G (counted in r*). Each pair's
 times vary by 10-20 % between runs here (``--repeat`` keeps the fastest of several).
 
-    python benchmarks/polish_3d.py              # levels 0-3 and the 257k-dof mesh
+    python benchmarks/polish_3d.py              # Example 3: levels 0-3, the 257k-dof mesh
+    python benchmarks/polish_3d.py --scene hertz_sphere   # the Hertz sphere, levels 0-3
     python benchmarks/polish_3d.py --quick      # levels 0-1
     python benchmarks/polish_3d.py --repeat 2   # best of two runs of each
     python benchmarks/polish_3d.py --only "level 3"   # both level-3 meshes
 
-Writes out_benchmarks/polish_3d.csv.
+Writes out_benchmarks/polish_3d_<scene>.csv.
 """
 
 from __future__ import annotations
@@ -45,19 +51,31 @@ from admm_dolfinx import ADMMSolver
 from admm_dolfinx.linalg.condensed import ContactSupport
 from admm_dolfinx.linalg.mumps_schur import selected_inverse_entries
 from admm_dolfinx.linalg.operators import PenalisedOperator
-from admm_dolfinx.scenes.library import example3
+from admm_dolfinx.scenes.library import example3, hertz_sphere
 
-#: The paper's contact model (along the body's normal): the README's tables of this
-#: script were measured in it, and SNES VI's bounds apply to Example 3 only in it.
-MODEL = "body"
-
-MESHES = [
-    ("level 0", {"level": 0}),
-    ("level 1", {"level": 1}),
-    ("level 2", {"level": 2}),
-    ("level 3", {"level": 3}),
-    ("level 3, h0=0.24", {"level": 3, "h_bottom": 0.24, "h_top": 0.24}),
-]
+#: Per scene: the builder, the contact model and the meshes. Example 3 in the paper's
+#: contact model (along the body's normal): the book's tables of this script were
+#: measured in it, and SNES VI's bounds apply to Example 3 only in it.
+SCENES = {
+    "example3": (
+        example3,
+        "body",
+        [
+            ("level 0", {"level": 0}),
+            ("level 1", {"level": 1}),
+            ("level 2", {"level": 2}),
+            ("level 3", {"level": 3}),
+            ("level 3, h0=0.24", {"level": 3, "h_bottom": 0.24, "h_top": 0.24}),
+        ],
+    ),
+    "hertz_sphere": (
+        hertz_sphere,
+        "obstacle",
+        [(f"level {level}", {"level": level}) for level in range(4)],
+    ),
+}
+#: The two variants, each to its own end (polishing is exact).
+VARIANTS = (("no polish", {"polish": False}), ("polish", {"polish": True}))
 
 
 def contact_solve(problem, **options):
@@ -137,21 +155,23 @@ def main():
     parser.add_argument("--quick", action="store_true", help="levels 0-1 only")
     parser.add_argument("--repeat", type=int, default=1, help="runs of each; the fastest")
     parser.add_argument("--only", help="the meshes whose name contains this")
+    parser.add_argument("--scene", choices=sorted(SCENES), default="example3")
     parser.add_argument("--out", default="out_benchmarks")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     rows = []
-    for name, kwargs in MESHES[:2] if args.quick else MESHES:
+    build, model, meshes = SCENES[args.scene]
+    for name, kwargs in meshes[:2] if args.quick else meshes:
         if args.only and args.only not in name:
             continue
-        problem = example3(comm, **kwargs).problem(contact_normal=MODEL)
+        problem = build(comm, **kwargs).problem(contact_normal=model)
         best = {}
         for _ in range(max(1, args.repeat)):
-            for variant, options in (("default", {}), ("polish", {"polish": True})):
+            for variant, options in VARIANTS:
                 seconds, result = contact_solve(problem, **options)
                 if variant not in best or seconds < best[variant][0]:
                     best[variant] = (seconds, result)
-        (t_def, default), (t_pol, polished) = best["default"], best["polish"]
+        (t_def, default), (t_pol, polished) = best["no polish"], best["polish"]
         r = default.penalty
         t_plain = min(
             timed(lambda p=problem, r=r: plain_solve(p, r))[0] for _ in range(max(1, args.repeat))
@@ -163,7 +183,7 @@ def main():
             "m": problem.num_contact_nodes,
             "plain [s]": f"{t_plain:.3g}",
         }
-        for label, seconds, result in (("default", t_def, default), ("polish", t_pol, polished)):
+        for label, seconds, result in (("no polish", t_def, default), ("polish", t_pol, polished)):
             t = result.timings
             row |= {
                 f"{label}: its": result.iterations,
@@ -174,7 +194,7 @@ def main():
                 f"{label}: / plain": f"{seconds / t_plain:.2f}",
                 f"{label}: KKT": f"{result.kkt.max():.1e}",
             }
-        row["polish / default"] = f"{t_pol / t_def:.2f}"
+        row["polish / no polish"] = f"{t_pol / t_def:.2f}"
         extra = polished.timings["factorization"] - default.timings["factorization"]
         row["condensed − plain factorisation [s]"] = f"{extra:.3g}" if comm.size == 1 else "–"
         row["C × C of (A + r*K)⁻¹ by inverse entries [s]"] = (
@@ -185,10 +205,10 @@ def main():
         )
         rows.append(row)
         if comm.rank == 0:
-            print(f"{name}: default {t_def:.3g} s, polish {t_pol:.3g} s", flush=True)
+            print(f"{name}: no polish {t_def:.3g} s, polish {t_pol:.3g} s", flush=True)
         problem.destroy()
     if comm.rank == 0:
-        print_and_save(rows, Path(args.out) / "polish_3d.csv")
+        print_and_save(rows, Path(args.out) / f"polish_3d_{args.scene}.csv")
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ for b in "${parallel[@]}" work_precision parallel_scaling; do run "$py" "benchma
 run "$py" benchmarks/hard_cases.py --small
 run "$py" benchmarks/penalty_accuracy.py
 run "$py" benchmarks/strips.py --quick
+run "$py" benchmarks/polish_3d.py --scene hertz_sphere --quick
 run "$py" benchmarks/contact_model.py --quick
 run "$py" benchmarks/scale_3d.py --quick
 run "$py" benchmarks/scale_2d.py --quick
