@@ -118,9 +118,15 @@ def pressed_box(
     obstacle: Obstacle | None = None,
     n: tuple[int, ...] | None = None,
     push: float = 0.04,
+    load: float | None = None,
     E: float = 1.0,
 ) -> ContactProblem:
-    """A box whose top face is pushed down by ``push`` onto an obstacle under its bottom."""
+    """A box whose top face is pushed down by ``push`` onto an obstacle under its bottom.
+
+    With ``load``, the top face is pressed by a downward traction of that size instead
+    and held only sideways: the box floats (its vertical translation and the rotations
+    about axes in its top face cost no energy) and the contact alone holds it.
+    """
     n = n or ((16, 6) if gdim == 2 else (6, 6, 4))
     lengths = (2.0, 0.5) if gdim == 2 else (1.0, 1.0, 0.5)
     msh = box_mesh(comm, gdim, cell, how, n, lengths)
@@ -135,17 +141,28 @@ def pressed_box(
     V = fem.functionspace(msh, ("Lagrange", 1, (gdim,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
     down = np.zeros(gdim)
-    down[-1] = -push
-    bc = fem.dirichletbc(down, fem.locate_dofs_topological(V, fdim, tags.find(TOP)), V)
     zero = fem.Constant(msh, np.zeros(gdim))
+    if load is None:
+        down[-1] = -push
+        bcs = [fem.dirichletbc(down, fem.locate_dofs_topological(V, fdim, tags.find(TOP)), V)]
+        force = ufl.dot(zero, v) * ufl.dx
+    else:
+        bcs = []
+        for i in range(gdim - 1):  # the top face held sideways only
+            Vi = V.sub(i)
+            dofs = fem.locate_dofs_topological(Vi, fdim, tags.find(TOP))
+            bcs.append(fem.dirichletbc(fem.Constant(msh, 0.0), dofs, Vi))
+        down[-1] = -load
+        ds = ufl.Measure("ds", msh, subdomain_data=tags)
+        force = ufl.dot(fem.Constant(msh, down), v) * ds(TOP)
     if obstacle is None:
         normal = np.zeros(gdim)
         normal[-1] = 1.0
         obstacle = Plane(np.full(gdim, 0.0) - 0.01 * normal, normal)
     return ContactProblem(
         LinearElastic(E, 0.3).bilinear_form(u, v),
-        ufl.dot(zero, v) * ufl.dx,
-        [bc],
+        force,
+        bcs,
         tags,
         BOTTOM,
         obstacle,

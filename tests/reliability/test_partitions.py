@@ -48,8 +48,8 @@ def _check_partition(problem, how: str) -> None:
         assert sum(n > 0 for n in info["contact"]) == 1
 
 
-def _serial(gdim, cell, how, **solver):
-    problem = pressed_box(MPI.COMM_SELF, gdim, cell, how, obstacle=_ball(gdim))
+def _serial(gdim, cell, how, load=None, **solver):
+    problem = pressed_box(MPI.COMM_SELF, gdim, cell, how, obstacle=_ball(gdim), load=load)
     with ADMMSolver(problem, **solver) as s:
         result = s.solve()
     return gathered(problem, result.u), result
@@ -77,6 +77,23 @@ AWKWARD = [
     (3, "hexahedron", "contact_on_one_rank"),
     (3, "tetrahedron", "no_contact_on_rank0"),
 ]
+
+
+@pytest.mark.parametrize("gdim,cell,how", AWKWARD)
+def test_floating_body_matches_serial(gdim, cell, how):
+    """Held by the contact alone: the default polishes (S_C is cheap here) in 2D and 3D."""
+    problem = pressed_box(COMM, gdim, cell, how, obstacle=_ball(gdim), load=0.02)
+    _check_partition(problem, how)
+    assert problem.rigid_motions.floating > 0
+    with ADMMSolver(problem) as solver:
+        assert solver.plan.polish == "dense"
+        result = solver.solve()
+    assert result.converged and result.polish.polished_at == result.iterations
+    assert compute_kkt_residuals(problem, result.u.x.petsc_vec, result.multiplier).max() <= 1e-10
+    u_serial, serial = _serial(gdim, cell, how, load=0.02)
+    assert _rel(gathered(problem, result.u), u_serial) <= 1e-10
+    assert result.num_active == serial.num_active > 0
+    problem.destroy()
 
 
 @pytest.mark.parametrize("gdim,cell,how", AWKWARD)
