@@ -190,7 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
         const=True,
         default=None,
         help="finish with active-set polishing on the dense Schur complement onto the "
-        "contact dofs, in 3D too (one process; by default only in 2D, where it is cheap)",
+        "contact dofs, in 3D too (by default in 2D, and in 3D for a body that the contact "
+        "alone holds, where it is cheap)",
     )
     polish.add_argument(
         "--no-polish",
@@ -198,7 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_const",
         const=False,
         help="do not finish with active-set polishing (on by default where the Schur "
-        "complement onto the contact dofs is at hand: 2D)",
+        "complement onto the contact dofs is cheap: 2D, and floating 3D bodies)",
     )
     run.add_argument(
         "--penalty-metric",

@@ -8,6 +8,7 @@ settings of its algorithm, and an explicit different value is an error.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -156,3 +157,50 @@ def test_a_settings_object_is_accepted(problem):
         assert solver.settings == settings
     with ADMMSolver(problem, settings, rtol=1e-6) as solver:  # options on top
         assert solver.settings.rtol == 1e-6 and solver.settings.mode == "paper"
+
+
+@pytest.fixture(scope="module")
+def floating():
+    """A small 3D body that the contact alone holds (the Hertz sphere, level 0)."""
+    from admm_dolfinx.scenes import hertz_sphere
+
+    problem = hertz_sphere(MPI.COMM_WORLD, level=0).problem()
+    assert problem.rigid_motions.floating > 0
+    return problem
+
+
+def test_floating_3d_plans_are_consistent(floating):
+    """Every combination that the settings and the plan accept builds a solver; the
+    surface metric never meets dense polishing or a condensed step 1; the default
+    polishes a small floating body, and without polishing it keeps the surface
+    metric with the local r* that its β and r were calibrated with."""
+    from admm_dolfinx.admm.plan import make_plan
+
+    serial = floating.comm.size == 1
+    for polish, condensed, metric in itertools.product(
+        (None, True, False), (None, True, False), ("auto", "mass", "surface")
+    ):
+        options = {"polish": polish, "condensed": condensed, "penalty_metric": metric}
+        try:
+            plan = make_plan(floating, ADMMSettings.create(**options))
+        except ValueError:
+            continue  # refused up front, before any work
+        if plan.metric == "surface":
+            assert plan.polish != "dense" and plan.step1 != "condensed", options
+        if plan.step1 == "condensed":
+            assert serial and plan.metric == "mass", options
+        with ADMMSolver(floating, **options) as solver:  # must not raise any more
+            # (the reasons quote MUMPS's estimate, which a parallel ordering varies)
+            assert dataclasses.replace(solver.plan, reasons=()) == dataclasses.replace(
+                plan, reasons=()
+            )
+    cases = {
+        (): ("dense", "mass", "dense"),
+        (("penalty_metric", "surface"),): ("none", "surface", "local"),
+        (("polish", False),): ("none", "surface", "local"),
+        (("polish", True),): ("dense", "mass", "dense"),
+    }
+    for options, (polish, metric, penalty) in cases.items():
+        plan = make_plan(floating, ADMMSettings.create(**dict(options)))
+        assert (plan.polish, plan.metric, plan.penalty) == (polish, metric, penalty), options
+        assert plan.step1 == ("condensed" if serial and metric == "mass" else "factorised")

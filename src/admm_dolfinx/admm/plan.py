@@ -140,6 +140,12 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
                 "is 2D (or pass penalty_metric='mass')."
             )
         metric = "surface"
+        # dense polishing works in the paper's metric (its compliance is that of
+        # A + rNᵀMN): the default (polish=None) polishes a floating body in the mass
+        # metric, so with the surface metric asked for, it does not polish
+        if polish != "none":
+            polish = "none"
+            reasons.remove("the dense Schur complement onto Γ_C is cheap here")
     elif (
         settings.penalty_metric == "auto"
         and gdim == 3
@@ -149,18 +155,26 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     ):
         metric = "surface"
         reasons.append("3D: the surface metric keeps the iteration count flat")
-    if metric == "surface" and condensed and settings.condensed is None:
-        # the surface metric penalises with Nᵀ(M + βL_Γ)N, which a step 1 condensed onto
-        # the metric M cannot: A + rK is factorised, and S_C (if polishing wants it)
-        # comes from a private condensed factorisation
-        condensed, step1 = False, "factorised"
-        schur = polish == "dense"
+    if metric == "surface":
+        if settings.condensed is True:
+            raise ValueError(
+                "penalty_metric='surface' penalises with Nᵀ(M + βL_Γ)N, which the "
+                "condensed step 1 cannot: pass condensed=None (or penalty_metric='mass')."
+            )
+        # a step 1 condensed onto the metric M cannot penalise with Nᵀ(M + βL_Γ)N, so
+        # A + rK is factorised; nothing polishes, so no S_C is wanted either
+        if condensed:
+            condensed, step1 = False, "factorised"
+        schur = False
     if not auto:
         penalty = "given"
     elif settings.penalty_method != "auto":
         penalty = settings.penalty_method
     else:
-        penalty = "dense" if schur or condensed_factor_applies(problem, options) else "local"
+        # the surface metric's β and r were calibrated with the local estimate (its
+        # λ_min a layer's lower bound), and without polishing S_C would serve r* alone
+        dense = metric == "mass" and condensed_factor_applies(problem, options)
+        penalty = "dense" if schur or dense else "local"
     if (
         penalty == "dense"
         and not schur

@@ -21,7 +21,9 @@ factorisation, and somewhat its substitutions, dearer than those of A + rK in 2D
 where C is a curve of O(n^½) dofs (``python benchmarks/penalty_cost.py`` prints both
 factorisations and what the condensed path adds to a solve). In 3D C is a surface
 of O(n^⅔) dofs, whose dense front of c³/3 flops dominates the factorisation, so
-:func:`admm_dolfinx.penalty.estimate.estimate_penalty` and the solver use it in 2D only.
+:func:`admm_dolfinx.penalty.estimate.estimate_penalty` and the solver use it in 2D,
+and in 3D only for a small body that the contact alone holds, which polishing serves
+(:func:`condensed_factor_applies`).
 
 PETSc computes the Schur complement in parallel (all of C on rank 0), but solves with
 it on one process only; under MPI the class serves the r* estimate and active-set
@@ -113,8 +115,12 @@ def condensed_factor_applies(
     m³ ≤ :data:`DENSE_COST_RATIO` · n^{3/2} (n the number of dofs). A 3D body held
     elsewhere converges in a few iterations of the surface metric, where S_C of a
     surface costs more than it saves; a floating one, unpolished, builds its contact
-    zone a few nodes per iteration (``python benchmarks/hertz_validation.py`` counts
-    the iterations on the Hertz sphere, polished below the size limit and not above).
+    zone a few nodes per iteration. On a curved 3D Γ_C, C has up to 3m dofs, and the
+    rule was checked there on the Hertz sphere, serially and on two processes, where
+    it polishes the meshes on which polishing pays and not the first on which it does
+    not (``python benchmarks/polish_3d.py --scene hertz_sphere``). In 3D the plan's
+    choice of multigrid for large bodies (:mod:`admm_dolfinx.admm.plan`) bounds n
+    first: then no factorisation is at hand and this returns False.
 
     Args:
         problem: The contact problem.

@@ -8,7 +8,8 @@ non-zero eigenvalues of A⁻¹NᵀMN, i.e. of the m × m pencil on the contact d
 so the best fixed r balances the two extremes: r* = 1/sqrt(λ_min λ_max). This module
 is the one entry point; the method is an explicit choice (``method``):
 
-* ``"dense"`` (the default in 2D where the condensed factorisation is cheap): one
+* ``"dense"`` (the default in 2D, and for a 3D body that the contact alone holds,
+  where the condensed factorisation is cheap): one
   factorisation of A condensed onto the contact dofs
   (:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`) gives the dense Schur
   complement S_C, from which the whole pencil follows

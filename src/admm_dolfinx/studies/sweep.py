@@ -132,7 +132,8 @@ def sample_penalty(
     iterations = np.empty(r_values.size, dtype=np.int64)
     converged = np.zeros(r_values.size, dtype=bool)
     t0 = time.perf_counter()
-    # one condensed factorisation serves every r where it can (2D, one process)
+    # one condensed factorisation serves every r where it can (2D or a small floating
+    # 3D body, one process)
     serial = problem.comm.size == 1
     condensed = True if serial and condensed_factor_applies(problem, petsc_options) else None
     solver_options.setdefault("polish", False)
