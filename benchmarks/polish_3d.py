@@ -8,8 +8,7 @@ Two scenes: Example 3 (``--scene example3``, held by its top face; the paper's
 contact model) and the Hertz sphere (``--scene hertz_sphere``, floating; the
 obstacle's normal). For each mesh, in one run:
 
-* ``polish=False``: r* by the iterative estimate (dense for the floating sphere, where
-  S_C is cheap), β and r of the surface metric
+* ``polish=False``: r* by the iterative estimate, β and r of the surface metric
   (:mod:`admm_dolfinx.linalg.surface_metric`), one factorisation of A + rNᵀ(M + βL_Γ)N,
   accelerated ADMM to the default tolerance (1e-6);
 * ``polish=True``: one factorisation of A condensed onto Γ_C, which gives r* densely,

@@ -213,7 +213,7 @@ def test_a_floating_3d_body_polishes_by_default():
     """3D, held by the contact alone: the default polishes (where S_C is cheap), exactly.
 
     Unpolished, the ADMM builds the contact zone of a floating body a few nodes per
-    iteration (``python benchmarks/hertz_validation.py`` counts both).
+    iteration (``python benchmarks/polish_3d.py --scene hertz_sphere`` counts both).
     """
     problem = hertz_sphere(level=0).problem()
     assert problem.rigid_motions.floating

@@ -194,6 +194,9 @@ def test_floating_3d_plans_are_consistent(floating):
             assert dataclasses.replace(solver.plan, reasons=()) == dataclasses.replace(
                 plan, reasons=()
             )
+    refusal = "condensed step 1 cannot" if serial else "condensed=True needs one process"
+    with pytest.raises(ValueError, match=refusal):
+        make_plan(floating, ADMMSettings.create(condensed=True, penalty_metric="surface"))
     cases = {
         (): ("dense", "mass", "dense"),
         (("penalty_metric", "surface"),): ("none", "surface", "local"),

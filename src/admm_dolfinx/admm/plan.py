@@ -121,13 +121,14 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     if condensed is None:
         condensed = serial and schur_possible and (auto or settings.polish is True)
     step1 = "condensed" if condensed else ("factorised" if factor else "iterative")
-    schur = condensed or (
-        schur_possible and settings.polish is not False and (auto or bool(settings.polish))
-    )
-    if schur and settings.polish is not False:
+    # dense polishing works in the paper's metric (its compliance is that of A + rNᵀMN):
+    # with the surface metric asked for, the default (polish=None) does not polish
+    may_polish = settings.polish is not False and settings.penalty_metric != "surface"
+    schur = condensed or (schur_possible and may_polish and (auto or bool(settings.polish)))
+    if schur and may_polish:
         polish = "dense"
         reasons.append("the dense Schur complement onto Γ_C is cheap here")
-    elif settings.polish is not False and (auto or settings.polish) and gdim == 2 and factor:
+    elif may_polish and (auto or settings.polish) and gdim == 2 and factor:
         polish = "sparse"
         reasons.append("Γ_C too large for dense polishing: sparse factorisations")
     else:
@@ -140,12 +141,6 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
                 "is 2D (or pass penalty_metric='mass')."
             )
         metric = "surface"
-        # dense polishing works in the paper's metric (its compliance is that of
-        # A + rNᵀMN): the default (polish=None) polishes a floating body in the mass
-        # metric, so with the surface metric asked for, it does not polish
-        if polish != "none":
-            polish = "none"
-            reasons.remove("the dense Schur complement onto Γ_C is cheap here")
     elif (
         settings.penalty_metric == "auto"
         and gdim == 3

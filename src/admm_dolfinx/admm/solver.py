@@ -257,12 +257,8 @@ class ADMMSolver:
                 penalty = self.penalty_estimate.r
             if plan.metric == "surface":
                 operator = self.operator
-                if not isinstance(operator, PenalisedOperator):
-                    raise ValueError(
-                        "penalty_metric='surface' penalises with Nᵀ(M + βL_Γ)N, which the "
-                        "condensed step 1 cannot: pass condensed=None (or penalty_metric="
-                        "'mass')."
-                    )
+                # make_plan refuses condensed=True with the surface metric
+                assert isinstance(operator, PenalisedOperator)
                 # the settings refuse a given penalty with the surface metric: r* is here
                 assert self.penalty_estimate is not None
                 self._metric = SurfaceMetric(problem)
