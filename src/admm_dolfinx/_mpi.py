@@ -7,8 +7,10 @@ Two rules keep a distributed run from hanging:
   :func:`run_on_rank0` broadcasts the outcome, and every rank raises.
 * **User code.** An obstacle's gap, a callback or a user's data may fail (or answer
   differently) on one rank only: :func:`collective_call` runs such code on every rank
-  and raises on every rank if it raised on any. mpi4py's abort-on-exception does not
-  help here: with petsc4py initialised it does not fire.
+  and raises on every rank if it raised on any, whatever it raised:
+  ``KeyboardInterrupt`` and ``SystemExit`` included (the rank that raised one re-raises
+  its own; the others raise a ``RuntimeError`` that names it). mpi4py's
+  abort-on-exception does not help here: with petsc4py initialised it does not fire.
 
 Distributed nodal arrays (one value per owned contact node) are collected on rank 0 in
 rank order and split back with :class:`RankLayout`, which handles ranks that own no
@@ -29,6 +31,7 @@ __all__ = [
     "OnRank0",
     "RankLayout",
     "agree",
+    "check_same_on_every_rank",
     "collective_call",
     "from_rank0",
     "gather_concat",
@@ -36,6 +39,7 @@ __all__ = [
     "gather_objects",
     "probe_vector",
     "raise_collectively",
+    "rebuilt_exception",
     "run_on_rank0",
 ]
 
@@ -58,7 +62,7 @@ def probe_vector(coords: npt.NDArray[np.floating], seed: float = 0.5) -> npt.NDA
     return phase - np.floor(phase) - 0.5
 
 
-def _rebuilt(name: str, text: str) -> Exception:
+def rebuilt_exception(name: str, text: str) -> Exception:
     """An exception of the builtin type ``name`` (RuntimeError if it is not one)."""
     kind = getattr(builtins, name, None)
     if isinstance(kind, type) and issubclass(kind, Exception) and kind is not BaseException:
@@ -74,7 +78,9 @@ def raise_collectively(comm: MPI.Comm, error: BaseException | None, what: str) -
 
     The lowest failing rank's error is raised: on that rank the original (unchanged),
     on the others an exception of the same builtin type whose message says where it
-    happened.
+    happened (a ``RuntimeError`` for a type that is not an ``Exception``). A rank whose
+    own error is a ``KeyboardInterrupt`` or ``SystemExit`` re-raises it whatever the
+    other ranks raised: an interrupt is never turned into an ordinary error.
 
     Args:
         comm: Communicator.
@@ -87,9 +93,9 @@ def raise_collectively(comm: MPI.Comm, error: BaseException | None, what: str) -
     if not failed:
         return
     rank, (name, text) = failed[0]
-    if comm.rank == rank and isinstance(error, Exception):
+    if error is not None and (comm.rank == rank or not isinstance(error, Exception)):
         raise error
-    raise _rebuilt(name, f"{what} failed on rank {rank}: {text}") from error
+    raise rebuilt_exception(name, f"{what} failed on rank {rank}: {text}") from error
 
 
 def collective_call(comm: MPI.Comm, fn: Callable[[], T], what: str) -> T:
@@ -106,10 +112,45 @@ def collective_call(comm: MPI.Comm, fn: Callable[[], T], what: str) -> T:
     value, error = None, None
     try:
         value = fn()
-    except Exception as exc:
+    except BaseException as exc:  # KeyboardInterrupt, SystemExit too: every rank leaves
         error = exc
     raise_collectively(comm, error, what)
     return value  # type: ignore[return-value]
+
+
+def check_same_on_every_rank(comm: MPI.Comm, values: dict[str, Any], what: str) -> None:
+    """Raise on every rank if some of ``values`` differ between the ranks; collective.
+
+    A setting computed per rank (``rtol=1e-6 * 10**-rank``, a penalty read from a
+    per-rank file) would make the ranks take different branches of a collective
+    algorithm: a hang, or an answer that depends on the rank. Values are compared by
+    their ``repr``.
+
+    Args:
+        comm: Communicator.
+        values: The settings by name.
+        what: Whose settings they are (``"The solver's settings"``), for the message.
+
+    Raises:
+        ValueError: On every rank alike, naming each setting that differs and its
+            values on the first ranks.
+    """
+    mine = {name: repr(value) for name, value in sorted(values.items())}
+    everyone = comm.allgather(mine)
+    differ = [name for name in mine if any(other.get(name) != mine[name] for other in everyone)]
+    if not differ:
+        return
+    shown = "; ".join(
+        f"{name}: "
+        + ", ".join(
+            f"{everyone[rank].get(name)} on rank {rank}" for rank in range(min(3, comm.size))
+        )
+        for name in differ
+    )
+    raise ValueError(
+        f"{what} differ between the MPI ranks ({shown}). Every rank must pass the same "
+        "values: compute them on one rank and broadcast them (comm.bcast(value, root=0))."
+    )
 
 
 def agree(comm: MPI.Comm, flag: bool) -> tuple[bool, bool]:
@@ -139,7 +180,8 @@ class OnRank0:
 
     On leaving the block, rank 0 tells every rank whether its work raised; if it did,
     every rank raises ``failure(type name, message, is OSError)`` (on rank 0 chained
-    to the original); otherwise the value is broadcast.
+    to the original; a ``KeyboardInterrupt`` or ``SystemExit`` there is re-raised as
+    itself); otherwise the value is broadcast.
 
     Args:
         comm: Communicator.
@@ -165,13 +207,13 @@ class OnRank0:
         return self
 
     def __exit__(self, kind, error, traceback) -> None:
-        if error is not None and not isinstance(error, Exception):
-            return  # KeyboardInterrupt, SystemExit: not caught (as elsewhere)
         report = None
         if self.here and error is not None:
             report = (type(error).__name__, str(error), isinstance(error, OSError))
         report = self.comm.bcast(report, root=0)
         if report is not None:
+            if error is not None and not isinstance(error, Exception):
+                return  # rank 0's KeyboardInterrupt, SystemExit: propagates as itself
             raise self.failure(*report) from error
         if error is not None:  # raised on another rank than 0: it propagates there
             return

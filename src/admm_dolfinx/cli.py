@@ -80,9 +80,7 @@ def cmd_run(args) -> int:
         _say(f"error: {err}")
     _say(result.summary())
     summary = result_summary(scene, problem, result) | {"wall_time": time.perf_counter() - t0}
-    if args.json:
-        write_json(comm, args.json, summary)
-        _say(f"wrote {args.json}")
+    # the folder's set first: if it cannot be published whole, nothing is written
     if args.out:
         coordinate = "angle" if scene.name == "example2" else "x"
         write_scene_outputs(
@@ -93,6 +91,9 @@ def cmd_run(args) -> int:
             coordinate=coordinate,
         )
         _say(f"wrote {args.out}/")
+    if args.json:
+        write_json(comm, args.json, summary)
+        _say(f"wrote {args.json}")
     problem.destroy()
     return status
 

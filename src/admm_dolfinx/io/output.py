@@ -2,12 +2,14 @@
 
 The rules (the package's guarantee, tested in ``tests/reliability``):
 
-* An output folder is created if need be and never removed or emptied: a command
-  writes its own files into it and touches nothing else (``--out .`` is safe).
-* Each file appears whole or not at all: it is written into a *staging* folder
-  beside its target, ``.admm-dolfinx-partial-<host>-<pid>-<random>``, and renamed
-  onto its final name only once the whole output was written (a file of the same
-  name, e.g. from an earlier run, is replaced).
+* An output folder is created when the outputs are written (a command refused before
+  that creates none) and never removed or emptied: a command writes its own files
+  into it and touches nothing else (``--out .`` is safe).
+* A set of files appears whole or not at all: it is written into a *staging* folder
+  beside its targets, ``.admm-dolfinx-partial-<host>-<pid>-<random>``, and renamed
+  onto the final names only once the whole output was written; if one of them cannot
+  be published (a folder in the way), none is (:func:`publish`). A file of the same
+  name, e.g. from an earlier run, is replaced.
 * A run killed while writing (``kill -9``) leaves its staging folder behind; the next
   output written into the same folder removes every such folder whose process is no
   longer alive on this host. Nothing else is ever deleted.
@@ -37,6 +39,7 @@ __all__ = [
     "atomic_path",
     "check_output_folder",
     "output_folder",
+    "publish",
     "rank0_write",
     "remove_stale_staging",
     "write_json",
@@ -132,11 +135,27 @@ def remove_stale_staging(folder: str | os.PathLike) -> list[Path]:
     return removed
 
 
+def _check_location(final: Path) -> None:
+    """Raise unless ``final`` is, or could be created as, a writable folder; creates nothing."""
+    if final.exists() and not final.is_dir():
+        raise NotADirectoryError(f"{str(final)!r} exists and is not a folder")
+    existing = final
+    while not existing.exists():  # the nearest ancestor that exists
+        if existing.parent == existing:  # pragma: no cover - the root always exists
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        raise NotADirectoryError(f"{str(existing)!r} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise PermissionError(f"no write permission in {str(existing)!r}")
+
+
 def check_output_folder(comm: MPI.Comm, path: str | os.PathLike) -> Path:
-    """Create ``path`` if need be and check that it is a writable folder; collective.
+    """Check that ``path`` is, or can be created as, a writable folder; collective.
 
     Called before the work, so that an unwritable ``--out`` fails in a second, not
-    after the solve.
+    after the solve. Nothing is created: a command refused later (a bad option, a
+    failed solve) leaves no folder behind.
 
     Returns:
         The resolved folder.
@@ -145,14 +164,72 @@ def check_output_folder(comm: MPI.Comm, path: str | os.PathLike) -> Path:
         OSError: On every rank, naming the path.
     """
     final = Path(path).resolve()
-
-    def check() -> None:
-        final.mkdir(parents=True, exist_ok=True)
-        if not os.access(final, os.W_OK | os.X_OK):
-            raise PermissionError(f"no write permission in {str(final)!r}")
-
-    rank0_write(comm, final, check)
+    rank0_write(comm, final, lambda: _check_location(final))
     return final
+
+
+#: The staging folder's sub-folder that holds the files a publication replaces, until
+#: every new file is in place (restored if one cannot be).
+_REPLACED = ".replaced"
+
+
+def _check_replaceable(entries: list[Path], final: Path) -> None:
+    """Raise if some new entry cannot replace what is at its name in ``final``."""
+    for entry in entries:
+        target = final / entry.name
+        if not (target.exists() or target.is_symlink()):
+            continue
+        if target.is_dir() and not target.is_symlink():
+            raise IsADirectoryError(
+                f"{str(target)!r} is a folder, in the way of the output file {entry.name!r}: "
+                "nothing was written. Move or rename it, or choose another --out"
+            )
+        if entry.is_dir():
+            raise FileExistsError(
+                f"{str(target)!r} exists, in the way of the output folder {entry.name!r}: "
+                "nothing was written. Move or rename it, or choose another --out"
+            )
+
+
+def publish(staging: Path, final: Path) -> None:
+    """Move every entry of ``staging`` into ``final``: all of them or none; one process.
+
+    First every target is checked (a folder where a file goes is refused before
+    anything moves); then each file that an entry replaces is moved aside into the
+    staging folder, and the entry renamed into place. If a rename fails, every entry
+    already moved goes back and every replaced file is restored, so ``final`` is as it
+    was. Only on success are the replaced files (older files of the same names)
+    removed, as a plain overwrite would.
+
+    Args:
+        staging: The folder holding the new entries (a sibling of their targets).
+        final: The output folder.
+
+    Raises:
+        OSError: If some entry cannot be published; ``final`` is then unchanged.
+    """
+    entries = sorted(e for e in staging.iterdir() if e.name != _REPLACED)
+    _check_replaceable(entries, final)
+    replaced = staging / _REPLACED
+    replaced.mkdir(exist_ok=True)
+    done: list[tuple[str, bool]] = []  # (name, whether an older file was moved aside)
+    try:
+        for entry in entries:
+            target = final / entry.name
+            had = target.exists() or target.is_symlink()
+            if had:
+                os.replace(target, replaced / entry.name)
+            done.append((entry.name, had))
+            os.replace(entry, target)
+    except BaseException:
+        for name, had in reversed(done):
+            target = final / name
+            if not (staging / name).exists() and (target.exists() or target.is_symlink()):
+                os.replace(target, staging / name)  # the new entry back to staging
+            if had:
+                os.replace(replaced / name, target)  # the older file back in place
+        raise
+    shutil.rmtree(replaced, ignore_errors=True)
 
 
 @contextlib.contextmanager
@@ -160,9 +237,9 @@ def output_folder(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
     """Write files into ``path`` whole or not at all, touching nothing else; collective.
 
     Yields a staging folder; the files the block writes there (``staging / name``)
-    are renamed into ``path`` once the block has succeeded on every rank. On a
-    failure (on any rank) nothing in ``path`` changes and the staging folder is
-    removed.
+    are published into ``path`` (:func:`publish`: all of them or none) once the block
+    has succeeded on every rank. On a failure (on any rank, ``KeyboardInterrupt``
+    included) nothing in ``path`` changes and the staging folder is removed.
 
     Args:
         comm: Communicator whose ranks all write into the folder.
@@ -174,36 +251,22 @@ def output_folder(comm: MPI.Comm, path: str | os.PathLike) -> Iterator[Path]:
     final = check_output_folder(comm, path)
 
     def create() -> str:
+        final.mkdir(parents=True, exist_ok=True)
         remove_stale_staging(final)
         tmp = Path(tempfile.mkdtemp(prefix=_staging_name(), dir=final))
         _share(tmp, directory=True)
         return str(tmp)
 
     tmp = Path(rank0_write(comm, final, create))
-    error: Exception | None = None
+    error: BaseException | None = None
     try:
         yield tmp
-    except Exception as exc:
+    except BaseException as exc:  # KeyboardInterrupt too: every rank leaves together
         error = exc
-    except BaseException:  # KeyboardInterrupt: no collective call, just clean up
-        if comm.rank == 0:
-            shutil.rmtree(tmp, ignore_errors=True)
-        raise
     try:
         raise_collectively(comm, error, f"Writing the output {str(final)!r}")
-    except Exception:
-        if comm.rank == 0:
-            shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    comm.Barrier()  # every rank has written and closed its part
-
-    def publish() -> None:
-        for entry in sorted(tmp.iterdir()):
-            os.replace(entry, final / entry.name)
-        tmp.rmdir()
-
-    try:
-        rank0_write(comm, final, publish)
+        comm.Barrier()  # every rank has written and closed its part
+        rank0_write(comm, final, lambda: publish(tmp, final))
     finally:
         if comm.rank == 0 and tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
