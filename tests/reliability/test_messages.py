@@ -149,3 +149,72 @@ def test_failed_construction_frees_what_it_built(scene, dim):
     ]
     del kept
     assert alive == [], [type(o).__name__ for o in alive]
+
+
+@pytest.mark.parametrize("pc", ["none", "jacobi"])
+def test_a_preconditioner_alone_is_no_step1_solver(scene, pc):
+    """preonly + pc none gave PETSc's raw "error code 83" at the first solve."""
+    with pytest.raises(ValueError, match=rf"pc_type='{pc}' once.*solves nothing.*cholesky"):
+        options = {"ksp_type": "preonly", "pc_type": pc}
+        ADMMSolver(problem_from(scene), penalty=3000.0, petsc_options=options)
+
+
+def test_a_destroyed_problem_is_named(scene):
+    problem = problem_from(scene)
+    problem.destroy()
+    with pytest.raises(RuntimeError, match=r"ContactProblem has been destroyed.*new"):
+        ADMMSolver(problem)
+
+
+def test_gap_at_a_node_fixed_by_a_dirichlet_condition_is_its_true_gap(scene):
+    """The clamped corner (0, 0) of Γ_C is not a contact node; its gap to the floor is
+    0.01 (it was reported as 0.0, "in contact")."""
+    problem = problem_from(scene)
+    assert COMM.allreduce(problem.contact.excluded.dofs.size, op=MPI.SUM) == 1
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+    gap = result.gap()
+    Q = gap.function_space
+    x = Q.tabulate_dof_coordinates()[: Q.dofmap.index_map.size_local]
+    corner = np.flatnonzero(np.linalg.norm(x[:, :2], axis=1) < 1e-12)
+    values = np.concatenate(COMM.allgather(gap.x.array[corner]))
+    assert values.tolist() == pytest.approx([0.01], abs=1e-14)
+    # and at the contact nodes the gap stays g − N u ≥ −tolerance, 0 in contact
+    lam = result.multiplier
+    assert np.all(np.abs(gap.x.array[problem.contact.dofs][lam > 0]) <= 1e-8)
+
+
+def test_slow_solve_advice_fits_the_settings(scene):
+    """The slow-solve warning advised "try anderson > 0" with Anderson on."""
+    history = {"fpr": list(np.geomspace(1.0, 1e-3, 400))}
+    with ADMMSolver(problem_from(scene), polish=False) as on:
+        text = on._slow_convergence_warning(history, True)
+        assert "400 iterations" in text and "anderson" not in text.lower()
+        assert "polish=True" in text
+    with ADMMSolver(problem_from(scene), anderson=0) as off:
+        assert "Anderson acceleration (anderson=5" in off._slow_convergence_warning(history, True)
+    with ADMMSolver(problem_from(scene), penalty=3000.0) as hand:
+        assert "penalty='auto'" in hand._slow_convergence_warning(history, True)
+
+
+def test_a_problem_on_comm_self_logs_on_every_rank(caplog):
+    """A problem of one rank of a parallel run logs there: its rank 0 is that rank."""
+    problem = example1(MPI.COMM_SELF, h=1 / 8, mesher="builtin").problem()
+    with caplog.at_level("INFO", logger="admm_dolfinx"):
+        with ADMMSolver(problem) as solver:
+            solver.solve()
+    texts = [record.getMessage() for record in caplog.records]
+    assert any(text.startswith("ADMM:") for text in texts), texts
+    assert any(text.startswith("r* = ") for text in texts), texts
+    # a problem on every rank still logs once, on rank 0
+    caplog.clear()
+    with caplog.at_level("INFO", logger="admm_dolfinx"):
+        with ADMMSolver(example1(COMM, h=1 / 8, mesher="builtin").problem()) as solver:
+            solver.solve()
+    assert bool(caplog.records) == (COMM.rank == 0)
+
+
+@pytest.mark.parametrize("h", [1e-9, 0.0, 2.0])
+def test_example1_refuses_an_absurd_mesh_size(h):
+    with pytest.raises(ValueError, match=r"h must (lie in \[1/2048, 1\]|be a positive)"):
+        example1(COMM, h=h, mesher="builtin")

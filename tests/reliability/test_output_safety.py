@@ -289,5 +289,5 @@ def test_contact_writer_keeps_the_users_files(tmp_path_factory):
     if COMM.rank == 0:
         (mine / "notes.txt").write_text("added by the user")
     COMM.Barrier()
-    with pytest.raises(FileExistsError, match="notes.txt"):
+    with pytest.raises(FileExistsError, match=r"notes\.txt"):
         ContactWriter(problem, mine)

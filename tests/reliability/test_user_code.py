@@ -165,3 +165,79 @@ def test_garbage_collection_is_never_collective(scene):
     with ADMMSolver(problem) as again:
         assert again.solve().converged
     gc.collect()
+
+
+class InterruptedOnLastRank(Obstacle):
+    """A user's obstacle whose evaluation is interrupted (Ctrl-C, sys.exit) on one rank."""
+
+    def __init__(self, kind: type[BaseException]):
+        self.kind = kind
+
+    def signed_distance(self, x):
+        if COMM.rank == LAST:
+            raise self.kind("stopped by the user")
+        return Plane((0.0, -0.01), (0.0, 1.0)).signed_distance(x)
+
+
+@pytest.mark.parametrize("kind", [KeyboardInterrupt, SystemExit])
+def test_an_interrupt_in_user_code_leaves_every_rank(scene, kind):
+    """The rank that was interrupted re-raises its own interrupt; the others leave the
+    collective call with an error that names it (they used to wait forever)."""
+    expected = kind if COMM.rank == LAST else RuntimeError
+    with pytest.raises(expected) as caught:
+        problem_from(scene, obstacle=InterruptedOnLastRank(kind))
+    if COMM.rank != LAST:
+        assert f"{kind.__name__}" in str(caught.value) and f"rank {LAST}" in str(caught.value)
+    # every rank is still in step: collective work goes on
+    assert ADMMSolver(problem_from(scene)).solve().converged
+
+
+def test_an_interrupt_in_the_callback_leaves_every_rank(scene):
+    def callback(k, u, lam):
+        if COMM.rank == LAST and k == 2:
+            raise KeyboardInterrupt
+        return False
+
+    expected = KeyboardInterrupt if COMM.rank == LAST else RuntimeError
+    with ADMMSolver(problem_from(scene), polish=False) as solver:
+        with pytest.raises(expected):
+            solver.solve(callback=callback)
+        assert solver.solve().converged  # still usable, on every rank
+
+
+@pytest.mark.skipif(COMM.size == 1, reason="settings differ between ranks only under MPI")
+@pytest.mark.parametrize(
+    "per_rank",
+    [
+        {"rtol": 1e-6 * 10.0**-COMM.rank},
+        {"penalty": 1000.0 * (1 + COMM.rank)},
+        {"max_iter": 100 + COMM.rank},
+        {"petsc_options": {"mat_mumps_icntl_14": 20 + COMM.rank}},
+    ],
+    ids=["rtol", "penalty", "max_iter", "petsc_options"],
+)
+def test_settings_that_differ_between_ranks_are_refused_on_every_rank(scene, per_rank):
+    (name,) = per_rank
+    with pytest.raises(ValueError, match=rf"settings differ between the MPI ranks \(.*{name}: "):
+        ADMMSolver(problem_from(scene), **per_rank)
+
+
+@pytest.mark.skipif(COMM.size == 1, reason="settings differ between ranks only under MPI")
+def test_a_setting_invalid_on_one_rank_only_is_refused_on_every_rank(scene):
+    rtol = -1.0 if COMM.rank == LAST else 1e-6
+    with pytest.raises(ValueError, match="rtol must be a positive"):
+        ADMMSolver(problem_from(scene), rtol=rtol)
+    with ADMMSolver(problem_from(scene)) as solver:
+        with pytest.raises(ValueError, match=r"differ between the MPI ranks \(.*rtol: "):
+            solver.update_settings(rtol=1e-6 * 10.0**-COMM.rank)
+        assert solver.settings.rtol == 1e-6  # unchanged, on every rank
+
+
+@pytest.mark.skipif(COMM.size == 1, reason="settings differ between ranks only under MPI")
+def test_estimate_penalty_arguments_that_differ_between_ranks_are_refused(scene):
+    from admm_dolfinx import estimate_penalty
+
+    with pytest.raises(ValueError, match=r"arguments differ between the MPI ranks \(tol: "):
+        estimate_penalty(problem_from(scene), tol=0.01 * (1 + COMM.rank))
+    with pytest.raises(ValueError, match="tol must lie in"):
+        estimate_penalty(problem_from(scene), tol=2.0 if COMM.rank == LAST else 0.01)

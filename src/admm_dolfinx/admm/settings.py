@@ -22,6 +22,8 @@ from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any
 
+from admm_dolfinx._mpi import check_same_on_every_rank
+
 __all__ = [
     "CHANGE_TEST_KKT_TOL",
     "DEFAULT_PREFIX",
@@ -47,6 +49,8 @@ _STOPPING = ("kkt", "change")
 _METRICS = ("auto", "mass", "surface")
 _PENALTY_METHODS = ("auto", "dense", "local", "factorised")
 _STEP1 = ("auto", "factorised", "iterative")
+#: The preconditioners that solve on their own, with ``ksp_type`` ``preonly``.
+_DIRECT_PCS = ("cholesky", "lu", "svd", "redundant")
 #: The presets: the values each mode starts from. The defaults of the accelerated mode
 #: were chosen by ``benchmarks/acceleration.py``.
 PRESETS: dict[str, dict[str, Any]] = {
@@ -284,6 +288,14 @@ class ADMMSettings:
             if not 0.0 < step1_rtol < 1.0:
                 raise ValueError(f"step1_rtol must lie in (0, 1) or be 'auto', got {step1_rtol}.")
         krylov = options.get("ksp_type", "preonly") != "preonly"
+        direct = options.get("pc_type", "cholesky") in _DIRECT_PCS
+        if not krylov and not direct:
+            raise ValueError(
+                f"petsc_options {dict(options)} apply the preconditioner "
+                f"pc_type={options['pc_type']!r} once (ksp_type 'preonly'): that solves "
+                "nothing. Use a factorisation (pc_type 'cholesky' or 'lu'; the default), or "
+                "a Krylov method with it (ksp_type 'cg')."
+            )
         if step1 == "factorised" and krylov:
             raise ValueError(
                 f"step1='factorised' conflicts with petsc_options ksp_type="
@@ -391,3 +403,12 @@ class ADMMSettings:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
         out["petsc_options"] = dict(self.petsc_options)
         return out
+
+    def check_same_on_every_rank(self, comm: Any) -> None:
+        """Raise on every rank if some setting differs between the ranks; collective.
+
+        Raises:
+            ValueError: On every rank alike, naming each setting that differs (see
+                :func:`admm_dolfinx._mpi.check_same_on_every_rank`).
+        """
+        check_same_on_every_rank(comm, self.as_dict(), "The solver's settings")

@@ -76,7 +76,7 @@ from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx._logging import get_logger
+from admm_dolfinx._logging import get_logger, speaking_for
 from admm_dolfinx._mpi import agree, collective_call
 from admm_dolfinx._threads import share_cores
 from admm_dolfinx.admm.anderson import AndersonMixer, weighted_norm
@@ -173,17 +173,31 @@ class ADMMSolver:
             raise TypeError(f"problem must be a ContactProblem, got {type(problem).__name__}.")
         if settings is not None and not isinstance(settings, ADMMSettings):
             raise TypeError(f"settings must be ADMMSettings, got {type(settings).__name__}.")
-        #: The validated settings (frozen).
-        self.settings: ADMMSettings = (
-            settings.replace(**options) if settings is not None else ADMMSettings.create(**options)
+        if problem.A is None:
+            raise RuntimeError(
+                "This ContactProblem has been destroyed (problem.destroy()); build a new "
+                "ContactProblem for a new solver, and destroy a problem only after its "
+                "solvers are done."
+            )
+        #: The validated settings (frozen), the same on every rank.
+        self.settings: ADMMSettings = collective_call(
+            problem.comm,
+            lambda: (
+                settings.replace(**options)
+                if settings is not None
+                else ADMMSettings.create(**options)
+            ),
+            "Validating the solver's settings",
         )
+        self.settings.check_same_on_every_rank(problem.comm)
         self.problem = problem
         share_cores(problem.comm)  # ranks sharing a node: no oversubscribed BLAS threads
         self.operator: PenalisedOperator | CondensedOperator | None = None
         self.polisher: ActiveSetPolish | SparsePolish | None = None
         self._step: MassMetricStep | SurfaceMetricStep = MassMetricStep()
         self._metric: SurfaceMetric | None = None
-        self._build()
+        with speaking_for(problem.comm):
+            self._build()
 
     def _build(self) -> None:
         """Plan, factorise and find r (collective); on a failure free what was built."""
@@ -340,7 +354,13 @@ class ADMMSolver:
                 f"update_settings changes {ITERATION_SETTINGS} only; {fixed} set r, the "
                 "factorisation or the plan: build a new ADMMSolver with them."
             )
-        self.settings = self.settings.replace(**changes)
+        settings = collective_call(
+            self.problem.comm,
+            lambda: self.settings.replace(**changes),
+            "Validating the solver's settings",
+        )
+        settings.check_same_on_every_rank(self.problem.comm)
+        self.settings = settings
 
     @property
     def ksp(self) -> PETSc.KSP:
@@ -438,6 +458,15 @@ class ADMMSolver:
             RuntimeError: If a linear solve fails, or the solver or its problem has
                 been destroyed.
         """
+        with speaking_for(self.problem.comm):
+            return self._solve(callback, warm_start)
+
+    def _solve(
+        self,
+        callback: Callable[[int, PETSc.Vec, np.ndarray], bool] | None,
+        warm_start: ADMMResult | None,
+    ) -> ADMMResult:
+        """:meth:`solve`'s work (its log on rank 0 of the problem's communicator)."""
         self._prepare()
         t_start = time.perf_counter()
         s, problem, c = self.settings, self.problem, self.problem.contact
@@ -803,16 +832,26 @@ class ADMMSolver:
         tail = np.asarray(history["fpr"][-20:], dtype=float)
         tail = tail[tail > 0]
         rate = float(np.exp(np.mean(np.diff(np.log(tail))))) if tail.size > 2 else float("nan")
-        origin = "r*" if self.penalty_estimate else "given by hand"
+        automatic = self.penalty_estimate is not None or self.surface_penalty is not None
+        origin = "automatic" if automatic else "given by hand"
+        if not automatic:
+            advice = "use penalty='auto' (r*), which balances the extreme modes."
+        elif self.settings.anderson == 0:
+            advice = "try Anderson acceleration (anderson=5, the default of mode='accelerated')."
+        elif self.polisher is None and self.plan.step1 != "iterative":
+            advice = (
+                "polish=True finishes with the exact contact set once it is found (where "
+                "the contact alone holds the body, the usual cause)."
+            )
+        else:
+            advice = (
+                "the body may be held by the contact alone, or the contact zone badly "
+                "resolved (refine the mesh near the contact)."
+            )
         return (
             f"ADMM {'needed' if converged else 'ran'} {n} iterations (contraction of the "
             f"fixed-point residual ≈ {rate:.4f} per iteration) at r = {self.penalty:.6g} "
-            f"({origin}). This is slow: "
-            + (
-                "use penalty='auto' (r*), which balances the extreme modes."
-                if not self.penalty_estimate
-                else "the contact zone may be badly resolved, or try anderson > 0."
-            )
+            f"({origin}). This is slow: {advice}"
         )
 
     # ------------------------------------------------------------------ lifetime

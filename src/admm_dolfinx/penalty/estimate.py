@@ -46,7 +46,8 @@ import numpy as np
 from dolfinx.common import Timer
 from petsc4py import PETSc
 
-from admm_dolfinx._logging import get_logger
+from admm_dolfinx._logging import get_logger, speaking_for
+from admm_dolfinx._mpi import check_same_on_every_rank, raise_collectively
 from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.linalg.contact_space import ContactSpace
 from admm_dolfinx.linalg.operators import PenalisedOperator
@@ -168,6 +169,43 @@ def estimate_penalty(
             or both ``lambda_min_tol`` and ``lambda_min_rings``.
         RuntimeError: If an eigenvalue solve does not converge.
     """
+    arguments = {
+        "tol": tol,
+        "max_it": max_it,
+        "method": method,
+        "petsc_options": petsc_options,
+        "petsc_options_prefix": petsc_options_prefix,
+        "lambda_min_tol": lambda_min_tol,
+        "lambda_min_rings": lambda_min_rings,
+    }
+    error = None
+    try:  # an argument out of range on one rank raises on every rank
+        _check_arguments(**arguments)
+    except (TypeError, ValueError) as exc:
+        error = exc
+    raise_collectively(problem.comm, error, "estimate_penalty")
+    check_same_on_every_rank(problem.comm, arguments, "estimate_penalty's arguments")
+    if lambda_min_rings is None and lambda_min_tol is None:
+        lambda_min_tol = min(2.0 * tol, 0.5)
+    with speaking_for(problem.comm):
+        return _estimate(
+            problem,
+            tol,
+            max_it,
+            method,
+            operator,
+            petsc_options,
+            petsc_options_prefix or "penalty_",
+            multigrid,
+            lambda_min_tol,
+            lambda_min_rings,
+        )
+
+
+def _check_arguments(
+    tol, max_it, method, petsc_options, petsc_options_prefix, lambda_min_tol, lambda_min_rings
+) -> None:
+    """Raise for an argument of :func:`estimate_penalty` out of its range."""
     if not (0.0 < tol < 1.0):
         raise ValueError(f"tol must lie in (0, 1), got {tol}.")
     if lambda_min_rings is not None:
@@ -182,15 +220,27 @@ def estimate_penalty(
             or lambda_min_rings < 0
         ):
             raise ValueError(f"lambda_min_rings must be an integer ≥ 0, got {lambda_min_rings!r}.")
-    elif lambda_min_tol is None:
-        lambda_min_tol = min(2.0 * tol, 0.5)
-    elif not (0.0 < lambda_min_tol < 1.0):
+    elif lambda_min_tol is not None and not (0.0 < lambda_min_tol < 1.0):
         raise ValueError(f"lambda_min_tol must lie in (0, 1), got {lambda_min_tol}.")
     if isinstance(max_it, bool) or not isinstance(max_it, int | np.integer) or max_it < 1:
         raise ValueError(f"max_it must be an integer ≥ 1, got {max_it!r}.")
     if method not in PENALTY_METHODS:
         raise ValueError(f"method must be one of {PENALTY_METHODS}, got {method!r}.")
-    prefix = petsc_options_prefix or "penalty_"
+
+
+def _estimate(
+    problem: ContactProblem,
+    tol: float,
+    max_it: int,
+    method: str,
+    operator: PenalisedOperator | CondensedOperator | None,
+    petsc_options: dict | None,
+    prefix: str,
+    multigrid: PETSc.PC | None,
+    lambda_min_tol: float | None,
+    lambda_min_rings: int | None,
+) -> PenaltyEstimate:
+    """:func:`estimate_penalty` on checked arguments; collective."""
     t_start = time.perf_counter()
     shared_condensed = isinstance(operator, CondensedOperator)
     if method == "auto":

@@ -31,6 +31,7 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from admm_dolfinx._logging import speaking_for
 from admm_dolfinx.linalg.petsc import PetscOwner
 from admm_dolfinx.problem.checks import check_dirichlet_conditions, check_finite, check_stiffness
 from admm_dolfinx.problem.contact_set import (
@@ -201,6 +202,36 @@ class ContactProblem(PetscOwner):
                 f"(along the body's own normal, the paper's model); got {contact_normal!r}."
             )
         V = _check_forms(a, L)
+        with speaking_for(V.mesh.comm):  # its warnings on rank 0 of the mesh's communicator
+            self._build(
+                V,
+                a,
+                L,
+                bcs,
+                facet_tags,
+                contact_marker,
+                obstacle,
+                contact_normal,
+                form_compiler_options,
+                jit_options,
+                t_start,
+            )
+
+    def _build(
+        self,
+        V,
+        a,
+        L,
+        bcs,
+        facet_tags,
+        contact_marker,
+        obstacle,
+        contact_normal,
+        form_compiler_options,
+        jit_options,
+        t_start,
+    ) -> None:
+        """The constructor's work; collective."""
         msh = V.mesh
         _check_obstacle(obstacle, msh.geometry.dim)
         if not isinstance(facet_tags, mesh.MeshTags):
@@ -403,7 +434,10 @@ class ContactProblem(PetscOwner):
         """
         _check_obstacle(obstacle, self.gdim)
         c = self.contact
-        gap, directions = compute_gap(obstacle, c, self.comm, self.length_scale)
+        with speaking_for(self.comm):
+            gap, directions, excluded_gap, excluded_directions = compute_gap(
+                obstacle, c, self.comm, self.length_scale
+            )
         turned = not np.allclose(directions, c.normals, rtol=0.0, atol=1e-13)
         turned = bool(self.comm.allreduce(turned, op=MPI.LOR))
         if turned:
@@ -432,6 +466,7 @@ class ContactProblem(PetscOwner):
             )
             self.operator_version += 1
         c.gap = gap
+        c.excluded.gap, c.excluded.normals = excluded_gap, excluded_directions
         self.obstacle = obstacle
         self._obstacle_state = obstacle_state(obstacle)
 

@@ -33,6 +33,7 @@ __all__ = [
     "CONTACT_NORMALS",
     "VERTEX_RULE",
     "ContactSet",
+    "ExcludedNodes",
     "build_contact_set",
     "compute_gap",
     "contact_measure",
@@ -102,6 +103,30 @@ def contact_measure(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -
 
 
 @dataclass
+class ExcludedNodes:
+    """The owned nodes of Γ_C whose normal displacement a Dirichlet condition fixes.
+
+    They are not contact nodes (nothing can change their normal displacement), but
+    their gap is still reported (``result.gap()``).
+
+    Attributes:
+        dofs: Local indices of their scalar (Q) dofs.
+        nodes: Their local node (block) indices in the displacement space.
+        coordinates: Their coordinates, shape (k, gdim).
+        body_normals: The body's outward unit normals there.
+        normals: The contact directions the obstacle gives them.
+        gap: Their gap.
+    """
+
+    dofs: npt.NDArray[np.int32]
+    nodes: npt.NDArray[np.int32]
+    coordinates: npt.NDArray[np.float64]
+    body_normals: npt.NDArray[np.float64]
+    normals: npt.NDArray[np.float64]
+    gap: npt.NDArray[np.float64]
+
+
+@dataclass
 class ContactSet:
     """The contact nodes owned by this rank and their geometry.
 
@@ -129,6 +154,8 @@ class ContactSet:
         q_to_node: For every local dof of Q, its node (block) in the displacement space.
         probe: Pseudo-random values in (−½, ½) per contact node that depend only on its
             coordinates: the start of the eigenvalue solves, the same on every partition.
+        excluded: The owned nodes of Γ_C that are not contact nodes (their normal
+            displacement is prescribed), with their gap.
     """
 
     Q: fem.FunctionSpace
@@ -146,6 +173,7 @@ class ContactSet:
     num_excluded: int
     q_to_node: npt.NDArray[np.int64]
     probe: npt.NDArray[np.float64]
+    excluded: ExcludedNodes
 
 
 def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -> int:
@@ -298,6 +326,7 @@ def build_contact_set(
             "into contact. Remove the Dirichlet condition from the contact boundary or "
             "choose another contact marker."
         )
+    all_gap, all_directions = gap, directions
     gap, directions = gap[keep], directions[keep]
     _check_gap_values(gap, coordinates[keep], comm, length_scale, f"{obstacle!r}", contact_normal)
 
@@ -322,6 +351,14 @@ def build_contact_set(
         num_excluded=int(n_on_contact - n_global),
         q_to_node=q_to_node,
         probe=probe_vector(coordinates[keep]),
+        excluded=ExcludedNodes(
+            dofs=candidates[~keep].astype(np.int32),
+            nodes=candidate_nodes[~keep].astype(np.int32),
+            coordinates=coordinates[~keep],
+            body_normals=body_normals[~keep],
+            normals=all_directions[~keep],
+            gap=all_gap[~keep],
+        ),
     )
 
 
@@ -432,7 +469,7 @@ def compute_gap(
     contact: ContactSet,
     comm: MPI.Comm,
     length_scale: float,
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+) -> tuple[npt.NDArray[np.float64], ...]:
     """The gap and contact directions of the contact set's nodes for an obstacle.
 
     Args:
@@ -443,19 +480,26 @@ def compute_gap(
             starts deeper inside the obstacle than this is an input error.
 
     Returns:
-        (g, directions), shapes (m_loc,) and (m_loc, gdim).
+        (g, directions), shapes (m_loc,) and (m_loc, gdim), and the same of the
+        excluded nodes (:class:`ExcludedNodes`).
 
     Raises:
         ValueError: On every rank, if the obstacle's answer has the wrong shape, a NaN
             or −inf gap, or a penetration deeper than the body's size.
     """
+    m = contact.coordinates.shape[0]
+    excluded = contact.excluded
     gap, directions = evaluate_obstacle(
-        obstacle, contact.coordinates, contact.body_normals, comm, contact.contact_normal
+        obstacle,
+        np.concatenate([contact.coordinates, excluded.coordinates]),
+        np.concatenate([contact.body_normals, excluded.body_normals]),
+        comm,
+        contact.contact_normal,
     )
     _check_gap_values(
-        gap, contact.coordinates, comm, length_scale, f"{obstacle!r}", contact.contact_normal
+        gap[:m], contact.coordinates, comm, length_scale, f"{obstacle!r}", contact.contact_normal
     )
-    return gap, directions
+    return gap[:m], directions[:m], gap[m:], directions[m:]
 
 
 def _check_gap_values(gap, coordinates, comm, length_scale, what, contact_normal) -> None:

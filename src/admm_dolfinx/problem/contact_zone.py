@@ -101,16 +101,29 @@ def active_facets(
     return mesh.meshtags(msh, fdim, chosen, np.full(chosen.size, value, dtype=np.int32))
 
 
-def gap_function(problem: ContactProblem, u: fem.Function) -> fem.Function:
-    """The remaining gap g_j − (N u)_j at the contact nodes as a P1 (Q1) scalar Function.
+def _remaining(values, normals, gap) -> npt.NDArray[np.float64]:
+    """The remaining gap g − u·d per node (NaN where g = +inf: it can never touch)."""
+    finite = np.isfinite(gap)
+    moved = np.einsum("ij,ij->i", values, normals)
+    return np.where(finite, np.where(finite, gap, 0.0) - moved, np.nan)
 
-    Zero off Γ_C (where no gap is defined) and at nodes in contact; negative where a
-    node penetrates the obstacle (by no more than the solver's tolerance).
+
+def gap_function(problem: ContactProblem, u: fem.Function) -> fem.Function:
+    """The remaining gap g_j − (N u)_j on Γ_C as a P1 (Q1) scalar Function.
+
+    Zero at nodes in contact, negative where a node penetrates the obstacle (by no
+    more than the solver's tolerance), NaN where the obstacle can never be reached
+    (an infinite gap); also at the nodes of Γ_C whose normal displacement a Dirichlet
+    condition prescribes (they are not contact nodes, and may penetrate). Zero off Γ_C,
+    where no gap is defined.
     """
     bs = problem.V.dofmap.index_map_bs
-    c = problem.contact
-    values = u.x.array.reshape(-1, bs)[c.nodes, : problem.gdim]
-    normal_displacement = np.einsum("ij,ij->i", values, c.normals)
-    finite_gap = np.where(np.isfinite(c.gap), c.gap, 0.0)
-    remaining = np.where(np.isfinite(c.gap), finite_gap - normal_displacement, 0.0)
-    return problem.pressure_function(remaining, name="gap")
+    c, gdim = problem.contact, problem.gdim
+    displacement = u.x.array.reshape(-1, bs)
+    f = problem.pressure_function(
+        _remaining(displacement[c.nodes, :gdim], c.normals, c.gap), name="gap"
+    )
+    e = c.excluded
+    f.x.array[e.dofs] = _remaining(displacement[e.nodes, :gdim], e.normals, e.gap)
+    f.x.scatter_forward()
+    return f

@@ -99,6 +99,11 @@ class Scene:
         return self.mesh.geometry.index_map().size_global
 
 
+#: The finest mesh size example1 builds (about 17 million cells: beyond what a
+#: workstation factorises).
+EXAMPLE1_FINEST_H = 1 / 2048
+
+
 def example1(
     comm: MPI.Comm = MPI.COMM_WORLD,
     *,
@@ -117,7 +122,7 @@ def example1(
 
     Args:
         comm: Communicator.
-        h: Mesh size.
+        h: Mesh size, in [:data:`EXAMPLE1_FINEST_H`, 1].
         mesher: ``"gmsh"`` (unstructured, as in the paper) or ``"builtin"``
             (DOLFINx structured right-diagonal triangles, 2/h × 1/h squares).
         E: Young's modulus.
@@ -129,6 +134,13 @@ def example1(
         The scene.
     """
     check_lengths(h=h)
+    if not EXAMPLE1_FINEST_H <= h <= 1.0:
+        raise ValueError(
+            f"h must lie in [1/{round(1 / EXAMPLE1_FINEST_H)}, 1] for example1 (a 2 × 1 "
+            f"rectangle: h = 1 is one cell across, h = 1/{round(1 / EXAMPLE1_FINEST_H)} "
+            f"about {4 / EXAMPLE1_FINEST_H**2 / 1e6:.0f} million cells), got h = {h!r}. "
+            "The paper's meshes go from h = 1/8 to 1/512."
+        )
     tags = {"left": 1, "top": 2, "bottom": 3, "right": 4}
     if mesher == "gmsh":
         data = rectangle(comm, (0.0, 0.0), (2.0, 1.0), h, tags)
