@@ -33,8 +33,10 @@ TAU_0 = 1e-2
 SIGMA = 1e-3
 #: The summable envelope's exponent q.
 DECAY = 1.5
-#: The smallest tolerance: below it the relative residual of CG is round-off.
-TAU_FLOOR = 1e-13
+#: The smallest tolerance: below it the relative residual of CG is round-off. It is
+#: relative to ‖b‖, which a large prescribed displacement makes large against the
+#: contact force; the force balance at rtol 1e-10 of such a body needs it this low.
+TAU_FLOOR = 1e-15
 #: Every τ_k is scaled by this when the KKT check finds the step-1 error too large.
 TIGHTEN = 1e-2
 

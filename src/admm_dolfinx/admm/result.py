@@ -14,6 +14,7 @@ from admm_dolfinx.penalty.estimate import PenaltyEstimate
 from admm_dolfinx.penalty.surface import SurfacePenalty
 from admm_dolfinx.problem.contact_set import Marker
 from admm_dolfinx.problem.kkt import KKTResiduals
+from admm_dolfinx.problem.penetration import ObstaclePenetration
 
 if TYPE_CHECKING:
     from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -160,8 +161,10 @@ class ADMMResult:
         plan: What the solver chose and why (:class:`~admm_dolfinx.admm.plan.SolverPlan`).
         max_pressure: max λ over Γ_C.
         contact_force: The total force of the obstacle on the body, a gdim vector
-            (:func:`admm_dolfinx.problem.forces.contact_force`): it balances the
-            support reactions and the loads to round-off.
+            (:func:`admm_dolfinx.problem.forces.contact_force`). With the support
+            reactions and the applied loads it balances to ``kkt.force_balance`` ×
+            max(|F_c|, |F_ext|), at most ``kkt_tol`` of it in a converged result.
+        applied_load: The resultant F_ext of the applied loads (of ``L``).
         contact_area: The measure of the contact zone, Σ M_jj over the active nodes
             (a length in 2D; :func:`admm_dolfinx.problem.contact_zone.contact_area`).
         mean_pressure: The mean pressure over the contact zone.
@@ -172,8 +175,12 @@ class ADMMResult:
         projection: The surface metric's QP statistics (active-set ``rounds``,
             ``factorisations``), if it was used.
         step1: An iterative step 1's work in this solve (None for a direct one).
-        warning: Non-empty when the solve was slow, with the observed contraction
-            rate and the likely cause.
+        obstacle_penetration: How deep the deformed contact nodes enter the obstacle
+            itself, not its linearisation (None in the paper's model):
+            :mod:`admm_dolfinx.problem.penetration`.
+        warning: Non-empty when the solve was slow (with the observed contraction rate
+            and the likely cause), or when the deformed body enters the obstacle beyond
+            the tolerance (where, and why).
     """
 
     u: fem.Function
@@ -192,6 +199,7 @@ class ADMMResult:
     plan: Any = None
     max_pressure: float = 0.0
     contact_force: npt.NDArray[np.float64] | None = None
+    applied_load: npt.NDArray[np.float64] | None = None
     contact_area: float = 0.0
     mean_pressure: float = 0.0
     problem: ContactProblem | None = field(default=None, repr=False, compare=False)
@@ -200,6 +208,7 @@ class ADMMResult:
     polish: PolishInfo | None = None
     projection: dict[str, int] | None = None
     step1: Step1Info | None = None
+    obstacle_penetration: ObstaclePenetration | None = None
     warning: str = ""
 
     def _solved_problem(self) -> ContactProblem:
@@ -243,11 +252,23 @@ class ADMMResult:
     def _gdim(self) -> int:
         return 0 if self.contact_force is None else int(np.size(self.contact_force))
 
-    @property
-    def _force_text(self) -> str:
-        if self.contact_force is None:
+    @staticmethod
+    def _vector_text(vector: npt.NDArray[np.float64] | None) -> str:
+        if vector is None:
             return "–"
-        return "(" + ", ".join(f"{value:.6g}" for value in self.contact_force) + ")"
+        return "(" + ", ".join(f"{value:.6g}" for value in vector) + ")"
+
+    def _forces_text(self) -> str:
+        """The forces on the body and how well they balance."""
+        text = f"  contact force = {self._vector_text(self.contact_force)}"
+        if self.contact_force is None or self.applied_load is None:
+            return text
+        supports = -(self.contact_force + self.applied_load)
+        return (
+            f"{text}, applied loads = {self._vector_text(self.applied_load)}, supports = "
+            f"{self._vector_text(supports)} (the three balance to "
+            f"{self.kkt.force_balance:.1e} × max(|contact|, |loads|))"
+        )
 
     def summary(self) -> str:
         """A short human-readable report (what the demos print)."""
@@ -279,10 +300,11 @@ class ADMMResult:
             f"  max pressure = {self.max_pressure:.6g}, mean pressure = "
             f"{self.mean_pressure:.6g}, contact {'length' if self._gdim == 2 else 'area'} = "
             f"{self.contact_area:.6g}",
-            f"  contact force = {self._force_text}",
+            self._forces_text(),
             "  KKT residuals (relative): "
             f"feasibility {k.primal_feasibility:.2e}, complementarity "
-            f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}",
+            f"{k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}, force balance "
+            f"{k.force_balance:.2e}",
             "  time [s]: " + ", ".join(f"{name} {value:.3f}" for name, value in t.items()),
         ]
         if self.step1 is not None:

@@ -19,7 +19,10 @@ from admm_dolfinx.linalg.galerkin import CoarsePenalty
 from admm_dolfinx.linalg.petsc import PetscOwner, check_solve, create_factor_solver
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["FactorisedOperator", "IterativeOperator", "PenalisedOperator"]
+__all__ = ["MAX_KRYLOV_ITERATIONS", "FactorisedOperator", "IterativeOperator", "PenalisedOperator"]
+
+#: The iteration limit of an iterative step-1 solve (unless ``ksp_max_it`` is given).
+MAX_KRYLOV_ITERATIONS = 1000
 
 
 class FactorisedOperator(PetscOwner):
@@ -313,6 +316,10 @@ class IterativeOperator(PenalisedOperator):
         ksp = super()._ensure_ksp(matrix)
         if fresh:
             ksp.setInitialGuessNonzero(True)
+            if "ksp_max_it" not in self._options:
+                # a solve asked for a tolerance at round-off may stagnate: it is then
+                # counted as unconverged, and the KKT check judges the answer
+                ksp.setTolerances(max_it=MAX_KRYLOV_ITERATIONS)
             if "ksp_divtol" not in self._options:
                 # a warm start leaves a tiny initial residual, which CG's preconditioned
                 # residual may exceed many times over on its way down: not a divergence

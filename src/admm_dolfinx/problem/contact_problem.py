@@ -326,6 +326,7 @@ class ContactProblem(PetscOwner):
         self._load = fem_petsc.create_vector(V)
         self._lift_k = fem_petsc.create_vector(V)
         self._assemble_load()
+        self._update_contact_stiffness()
         c = self.contact
         #: The rigid motions that A does not resist (each held by the contact).
         self.rigid_motions: RigidMotions = analyse_rigid_motions(
@@ -361,8 +362,41 @@ class ContactProblem(PetscOwner):
         fem_petsc.set_bc(free_load, bcs, alpha=0.0)
         #: ‖f‖₂ over the free dofs (the scale of forces in the KKT residuals).
         self.load_norm = free_load.norm()
+        #: ‖f‖₁ over the free dofs (the round-off scale of the force balance).
+        self.load_norm_1 = free_load.norm(PETSc.NormType.NORM_1)
         free_load.destroy()
+        #: The resultant of the applied loads, Σ_i L(φ_i) per direction (gdim,): what
+        #: the contact force and the support reactions balance.
+        self.applied_load = self._resultant(self._L)
         self._load_data = _form_data(self._L_ufl) + _bc_data(bcs)
+
+    def _resultant(self, form: fem.Form) -> npt.NDArray[np.float64]:
+        """Σ_i of an assembled linear form over all dofs, per direction (gdim,); collective."""
+        vec = fem_petsc.assemble_vector(form)
+        try:
+            vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            bs = self.V.dofmap.index_map_bs
+            local = vec.array_r.reshape(-1, bs)[:, : self.gdim].sum(axis=0)
+        finally:
+            vec.destroy()
+        return np.asarray(self.comm.allreduce(local, op=MPI.SUM), dtype=np.float64)
+
+    def _update_contact_stiffness(self) -> None:
+        """Set k_j = Σ_d ñ_jd² A_(jd,jd) / M_jj, node j's own normal stiffness.
+
+        The stiffness of node j alone against its normal motion (the others held):
+        λ_j / k_j is the normal displacement its own pressure would cause, the smallest
+        length of the contact (see :func:`~admm_dolfinx.problem.kkt.contact_length`).
+        """
+        c = self.contact
+        diagonal = self.A.getDiagonal()
+        try:
+            bs = self.V.dofmap.index_map_bs
+            values = diagonal.array_r.reshape(-1, bs)[c.nodes, : self.gdim]
+        finally:
+            diagonal.destroy()
+        #: The contact nodes' own normal stiffness per unit area, shape (m_loc,).
+        self.contact_stiffness = np.einsum("ij,ij->i", values, c.free_normals**2) / c.mass
 
     # ------------------------------------------------------------- load steps
     def update_load(self) -> None:
@@ -461,6 +495,7 @@ class ContactProblem(PetscOwner):
             fem_petsc.assemble_matrix(self.K, self._k, bcs=self.bcs, diag=0.0)  # type: ignore[misc]
             self.K.assemble()
             self._assemble_load()  # the lifting of K by the Dirichlet values
+            self._update_contact_stiffness()
             self.rigid_motions = analyse_rigid_motions(
                 self.A, self.V, c.nodes, c.normals, c.mass, self.stiffness_scale, self.bounds
             )
