@@ -167,9 +167,17 @@ def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):
     with ADMMSolver(problem) as solver:
         assert solver.plan.step1 == "iterative" and "flops" in solver.plan.describe()
         assert solver.solve().converged
+    # the paper's algorithm factorises wherever it fits, and says so (it switched to
+    # multigrid on Table 6's largest mesh)
+    paper = example3(level=1).problem(contact_normal="body")
+    with ADMMSolver(paper, mode="paper") as solver:
+        assert solver.plan.step1 == "factorised"
+        assert "as the paper's algorithm" in solver.plan.describe()
     monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", 1e30)
     monkeypatch.setattr(plan_module, "available_memory", lambda: 1e3)
     with ADMMSolver(problem) as solver:
+        assert solver.plan.step1 == "iterative" and "available" in solver.plan.describe()
+    with ADMMSolver(paper, mode="paper") as solver:  # unless it does not fit
         assert solver.plan.step1 == "iterative" and "available" in solver.plan.describe()
     with ADMMSolver(problem, step1="factorised") as solver:  # the user's choice stands
         assert solver.plan.step1 == "factorised"

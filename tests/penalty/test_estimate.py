@@ -421,3 +421,53 @@ def test_dense_failure_is_a_clear_error_on_every_rank(monkeypatch):
         estimate_penalty(problem)
     monkeypatch.undo()
     assert estimate_penalty(problem).details["method"] == "dense"
+
+
+@serial_only
+@pytest.mark.parametrize(
+    "scene",
+    [
+        lambda: example1(h=1 / 16, mesher="builtin"),  # m = 32: EPSLAPACK
+        lambda: example1(h=1 / 256, mesher="builtin"),  # m = 512 > LAPACK_LIMIT: Krylov–Schur
+        lambda: example2(level=1),  # floating: the rigid motion deflated
+    ],
+    ids=["lapack", "krylov-schur", "floating"],
+)
+def test_dense_r_star_comes_from_slepc_and_equals_numpys(scene, monkeypatch):
+    """The 2D r* is SLEPc's (an EPS on the dense compliance), the same to 1e-10 as the
+    whole spectrum by numpy's LAPACK (the dense method before SLEPc)."""
+    from admm_dolfinx.penalty import dense as dense_pencil
+
+    problem = scene().problem()
+    calls = []
+    real = dense_pencil.compliance_spectrum
+
+    def counted(compliance, prefix, *, whole):
+        calls.append((compliance.shape[0], prefix))
+        return real(compliance, prefix, whole=whole)
+
+    monkeypatch.setattr(dense_pencil, "compliance_spectrum", counted)
+    slepc = estimate_penalty(problem, petsc_options_prefix="mine_")
+    assert slepc.details["method"] == "dense" and calls
+    assert all(prefix == "mine_dense_" for _, prefix in calls)
+    monkeypatch.setattr(
+        dense_pencil, "compliance_spectrum", lambda t, prefix, whole: np.linalg.eigvalsh(t)
+    )
+    reference = estimate_penalty(problem)
+    assert slepc.r == pytest.approx(reference.r, rel=1e-10)
+    assert slepc.lambda_min == pytest.approx(reference.lambda_min, rel=2e-10)
+    assert slepc.lambda_max == pytest.approx(reference.lambda_max, rel=2e-10)
+
+
+@serial_only
+def test_dense_eigensolver_reads_its_options_prefix():
+    """The EPS of the dense r* takes the user's options under <prefix>penalty_dense_."""
+    problem = example1(h=1 / 16, mesher="builtin").problem()
+    options = PETSc.Options()
+    options["admm_penalty_dense_eps_type"] = "no_such_type"
+    try:
+        with pytest.raises(RuntimeError, match="admm_penalty_dense_"):
+            ADMMSolver(problem)
+    finally:
+        del options["admm_penalty_dense_eps_type"]
+    assert ADMMSolver(problem).solve().converged

@@ -12,7 +12,8 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) decides: multigrid if
   the factorisation would need more than :data:`MEMORY_FRACTION` of the available
   memory or more than :data:`FACTOR_FLOPS_LIMIT` operations (where the multigrid path
-  is faster: ``python benchmarks/scale_3d.py`` measures both sides of it);
+  is faster: ``python benchmarks/scale_3d.py`` measures both sides of it). With
+  ``mode="paper"`` only memory counts: the paper's algorithm factorises step 1;
 * r*: dense (from the condensed factorisation), local (no factorisation of the body)
   or factorised, unless the penalty is given, and its eigenvalue tolerance (looser in
   the surface metric, which uses λ_min and λ_max roughly);
@@ -225,6 +226,9 @@ def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: d
             f"a factorisation would need {need}, more than {MEMORY_FRACTION:g} of the "
             f"{memory / 1e9:.3g} GB available: CG + multigrid"
         )
+    if settings.mode == "paper":
+        # the paper's Algorithm 2 factorises step 1 once: kept wherever it fits
+        return False, f"MUMPS factorisation, as the paper's algorithm ({need})"
     if estimate.flops > FACTOR_FLOPS_LIMIT:
         return True, (
             f"a factorisation would need {need} (> {FACTOR_FLOPS_LIMIT:.0e} flops, where "

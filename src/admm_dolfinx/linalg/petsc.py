@@ -213,10 +213,11 @@ def apply_options(
             obj.setFromOptions()
             if setup:
                 obj.setUp()
-        except PETSc.Error as error:
+        except (PETSc.Error, SystemError) as error:  # slepc4py: a SystemError
             raise RuntimeError(
                 f"PETSc could not set up {what or type(obj).__name__} (options prefix "
-                f"{prefix!r}) with the options {options}: {describe_petsc_error(error)}."
+                f"{prefix!r}) with the options {options} and those of the options "
+                f"database under -{prefix}: {describe_petsc_error(error)}."
             ) from error
         unused = [key for key in options if setup and not database.used(f"{prefix}{key}")]
     if unused:
@@ -243,10 +244,12 @@ _PETSC_ERRORS = {
 }
 
 
-def describe_petsc_error(error: PETSc.Error) -> str:
+def describe_petsc_error(error: Exception) -> str:
     """PETSc's error code with what it means."""
     code = getattr(error, "ierr", None)
-    meaning = _PETSC_ERRORS.get(code, "see the PETSc traceback above") if code else ""
+    if not code:  # slepc4py's SystemError carries no code: PETSc printed the reason
+        return "an error PETSc reported above (an unknown type name, or a bad value)"
+    meaning = _PETSC_ERRORS.get(code, "see the PETSc traceback above")
     return f"PETSc error {code}: {meaning}"
 
 

@@ -8,12 +8,18 @@ m × m compliance of Γ_C at penalty r is
 
 whose eigenvalues are θ = λ / (1 + rλ) for the eigenvalues λ of the contact pencil
 NᵀMN w = λ A w. Active-set polishing (:mod:`admm_dolfinx.admm.polish_dense`) uses T(r) itself;
-r* = 1/sqrt(λ_min λ_max) needs the two ends of its spectrum: LAPACK's symmetric
-eigenvalue solver (values only) gives all of T's at once, to an absolute accuracy
-of ε‖T‖, so λ_min to a relative ε κ: enough for any κ = λ_max/λ_min that double
-precision holds (a thin strip has κ ≈ 1e10). Krylov–Schur is no alternative here: the
-small end of T is a cluster of short-wave modes, and shift-and-invert at 0 did not
-reach 1e-8 in 1000 restarts on such a strip.
+r* = 1/sqrt(λ_min λ_max) needs the two ends of its spectrum, which a SLEPc ``EPS`` on
+the dense T finds (:func:`compliance_spectrum`, options prefix ``<penalty prefix>dense_``):
+
+* up to :data:`LAPACK_LIMIT` contact nodes, ``EPSLAPACK``: LAPACK's symmetric
+  eigensolver, all of T's eigenvalues at once, to an absolute accuracy of ε‖T‖, so
+  λ_min to a relative ε κ: enough for any κ = λ_max/λ_min that double precision holds
+  (a thin strip has κ ≈ 1e10);
+* beyond, Krylov–Schur for each end: the largest θ directly, the smallest by
+  shift-and-invert at 0 (a dense Cholesky factorisation of T); the same accuracy,
+  at a fraction of LAPACK's cost (which grows as m³ with its eigenvectors). Where the
+  small end is a tight cluster of short-wave modes and shift-and-invert does not
+  converge within its restarts, LAPACK is used after all.
 
 The rigid motions that the contact holds (a floating body: θ = 1/r_a) are known from
 the problem (:mod:`admm_dolfinx.problem.rigid_motions`) and deflated, so that no eigenvalue
@@ -27,11 +33,35 @@ import time
 
 import numpy as np
 from dolfinx.common import Timer
+from mpi4py import MPI
+from petsc4py import PETSc
+from slepc4py import SLEPc
 
+from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import OnRank0, RankLayout
 from admm_dolfinx.linalg.condensed import CondensedOperator
+from admm_dolfinx.linalg.petsc import apply_options
 
-__all__ = ["RIGID_TOL", "compliance_matrix", "dense_extremes", "extremes_from_schur"]
+__all__ = [
+    "LAPACK_LIMIT",
+    "RIGID_TOL",
+    "compliance_matrix",
+    "compliance_spectrum",
+    "dense_extremes",
+    "extremes_from_schur",
+]
+
+logger = get_logger(__name__)
+
+#: Up to this many contact nodes, LAPACK (SLEPc's ``EPSLAPACK``) gives the whole
+#: spectrum of T; beyond, Krylov–Schur its two ends. ``EPSLAPACK`` computes the
+#: eigenvectors too: on this machine 0.07 s at m = 500, 0.5 s at m = 1000, where
+#: Krylov–Schur takes 0.03 s (``python benchmarks/penalty_cost.py`` measures r*'s cost).
+LAPACK_LIMIT = 500
+#: Relative tolerance of the Krylov–Schur ends (r* inherits half of λ's error).
+KRYLOV_TOL = 1e-13
+#: Krylov–Schur restarts before LAPACK is used after all.
+KRYLOV_MAX_IT = 300
 
 #: θ with 1 − r_a θ below this is a rigid motion (λ = ∞).
 RIGID_TOL = 1e-6
@@ -95,6 +125,7 @@ def extremes_from_schur(
     weights: np.ndarray,
     rigid: np.ndarray | None = None,
     smooth: np.ndarray | None = None,
+    prefix: str = "penalty_dense_",
 ) -> tuple[float, float, int]:
     """λ_min, λ_max and the rigid motions seen by Γ_C, densely from S_C; exact.
 
@@ -115,13 +146,14 @@ def extremes_from_schur(
         smooth: Smooth normal pressures on Γ_C in compliance coordinates (m × k, e.g.
             M^{½} times 1, x, y): their Ritz value bounds λ_max from below and sets
             the first r_a. None: r_a starts at about 1e-3/λ_min.
+        prefix: Options prefix of the eigensolvers (:func:`compliance_spectrum`).
 
     Returns:
         λ_min, λ_max (over the finite eigenvalues) and the number of rigid motions.
 
     Raises:
         RuntimeError: If S_C + r_a K_CC is not positive definite (A_II singular: a
-            motion of the body that Γ_C does not see), every mode is rigid, or LAPACK
+            motion of the body that Γ_C does not see), every mode is rigid, or SLEPc
             fails.
     """
     r_a = 1e-3 * float(np.trace(schur) / np.trace(k_cc))
@@ -135,7 +167,7 @@ def extremes_from_schur(
         complement = q[:, rigid.shape[1] :]
     for _attempt in range(8):
         compliance = compliance_matrix(schur, k_cc, weights, r_a)
-        finite, n_rigid = _finite_spectrum(compliance, r_a, complement, known)
+        finite, n_rigid = _finite_spectrum(compliance, r_a, complement, known, prefix)
         lam_max = finite[-1] / (1.0 - r_a * finite[-1])
         if r_a * lam_max <= _MAX_RA_LAMBDA:
             break
@@ -146,16 +178,91 @@ def extremes_from_schur(
     return float(lam_min), float(lam_max), int(n_rigid)
 
 
+def _eps(matrix: PETSc.Mat, prefix: str, kind: str, which: str, nev: int = 1) -> SLEPc.EPS:
+    """A SLEPc eigensolver of the symmetric dense ``matrix``, configured, not solved."""
+    eps = SLEPc.EPS().create(comm=MPI.COMM_SELF)
+    eps.setOperators(matrix)
+    eps.setProblemType(SLEPc.EPS.ProblemType.HEP)
+    eps.setType(kind)
+    eps.setDimensions(nev=nev)
+    if which == "smallest" and kind == SLEPc.EPS.Type.KRYLOVSCHUR:
+        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
+        eps.setTarget(0.0)
+        st = eps.getST()
+        st.setType(SLEPc.ST.Type.SINVERT)
+        st.getKSP().setType(PETSc.KSP.Type.PREONLY)
+        st.getKSP().getPC().setType(PETSc.PC.Type.CHOLESKY)
+    else:
+        eps.setWhichEigenpairs(
+            SLEPc.EPS.Which.SMALLEST_REAL if which == "smallest" else SLEPc.EPS.Which.LARGEST_REAL
+        )
+    eps.setTolerances(KRYLOV_TOL, KRYLOV_MAX_IT)
+    apply_options(eps, prefix, {}, what="the dense r*'s eigensolver")  # the user's last
+    return eps
+
+
+def _solved(eps: SLEPc.EPS, count: int) -> list[float] | None:
+    """The first ``count`` eigenvalues of a solved EPS, or None if fewer converged."""
+    if eps.getConverged() < count:
+        return None
+    return [eps.getEigenvalue(i).real for i in range(count)]
+
+
+def compliance_spectrum(compliance: np.ndarray, prefix: str, *, whole: bool) -> np.ndarray:
+    """Eigenvalues of the symmetric compliance T by SLEPc, ascending; one process.
+
+    Args:
+        compliance: T, symmetric m × m.
+        prefix: Options prefix of the eigensolvers (``<prefix>eps_type`` and the like);
+            the Krylov–Schur ends take ``<prefix>max_`` and ``<prefix>min_``.
+        whole: Every eigenvalue (to classify rigid motions by their size); otherwise
+            only the two ends are needed.
+
+    Returns:
+        All eigenvalues, or (where m > :data:`LAPACK_LIMIT` and not ``whole``) the
+        smallest and the largest.
+
+    Raises:
+        RuntimeError: If SLEPc computes no spectrum.
+    """
+    m = compliance.shape[0]
+    matrix = PETSc.Mat().createDense(
+        [m, m], array=np.asfortranarray(compliance, dtype=PETSc.ScalarType), comm=MPI.COMM_SELF
+    )
+    matrix.assemble()
+    try:
+        if not whole and m > LAPACK_LIMIT:
+            ends = []
+            for which in ("smallest", "largest"):
+                eps = _eps(matrix, f"{prefix}{which[:3]}_", SLEPc.EPS.Type.KRYLOVSCHUR, which)
+                try:
+                    eps.solve()
+                    ends.append(_solved(eps, 1))
+                finally:
+                    eps.destroy()
+            if all(end is not None for end in ends):
+                return np.array([ends[0][0], ends[1][0]])  # type: ignore[index]
+            logger.info("r*: Krylov–Schur did not converge on T (m = %d): LAPACK instead", m)
+        eps = _eps(matrix, prefix, SLEPc.EPS.Type.LAPACK, "smallest", nev=m)
+        try:
+            eps.solve()
+            values = _solved(eps, m)
+        finally:
+            eps.destroy()
+    finally:
+        matrix.destroy()
+    if values is None:  # pragma: no cover - LAPACK's QR iteration
+        raise RuntimeError("SLEPc's LAPACK eigensolver failed on the dense contact pencil.")
+    return np.sort(np.asarray(values))
+
+
 def _finite_spectrum(
-    compliance: np.ndarray, r_a: float, complement: np.ndarray | None, known: bool
+    compliance: np.ndarray, r_a: float, complement: np.ndarray | None, known: bool, prefix: str
 ) -> tuple[np.ndarray, int]:
-    """The finite θ of T (ascending) and the number of rigid ones (LAPACK, values only)."""
+    """The finite θ of T (ascending; its ends only if ``known``) and the number of rigid ones."""
     if complement is not None:
         compliance = complement.T @ compliance @ complement
-    try:
-        theta = np.linalg.eigvalsh(compliance)
-    except np.linalg.LinAlgError as error:  # pragma: no cover - LAPACK's QR iteration
-        raise RuntimeError(f"LAPACK failed on the dense contact pencil: {error}") from error
+    theta = compliance_spectrum(compliance, prefix, whole=not known)
     if known:  # the deflated directions are the rigid ones
         return theta, 0 if complement is None else complement.shape[0] - complement.shape[1]
     finite = theta[1.0 - r_a * theta > RIGID_TOL]
@@ -194,6 +301,7 @@ def dense_extremes(problem, condensed, prefix, petsc_options):
                         condensed.support.weights,
                         rigid=rigid.T,
                         smooth=smooth.T,
+                        prefix=prefix + "dense_",
                     )
         lambda_min, lambda_max, rigid = work.value
         details = {
