@@ -15,6 +15,7 @@ from admm_dolfinx.penalty.surface import SurfacePenalty
 from admm_dolfinx.problem.contact_set import Marker
 from admm_dolfinx.problem.kkt import KKTResiduals
 from admm_dolfinx.problem.penetration import ObstaclePenetration
+from admm_dolfinx.problem.resolution import ContactResolution
 
 if TYPE_CHECKING:
     from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -178,9 +179,13 @@ class ADMMResult:
         obstacle_penetration: How deep the deformed contact nodes enter the obstacle
             itself, not its linearisation (None in the paper's model):
             :mod:`admm_dolfinx.problem.penetration`.
+        resolution: Whether the mesh resolves the contact zone around the pressure
+            peak, with an estimate of the peak pressure's error
+            (:mod:`admm_dolfinx.problem.resolution`).
         warning: Non-empty when the solve was slow (with the observed contraction rate
-            and the likely cause), or when the deformed body enters the obstacle beyond
-            the tolerance (where, and why).
+            and the likely cause), when the deformed body enters the obstacle beyond
+            the tolerance (where, and why), or when the contact zone is under-resolved
+            (the estimated error of the peak pressure, and the fix).
     """
 
     u: fem.Function
@@ -209,6 +214,7 @@ class ADMMResult:
     projection: dict[str, int] | None = None
     step1: Step1Info | None = None
     obstacle_penetration: ObstaclePenetration | None = None
+    resolution: ContactResolution | None = None
     warning: str = ""
 
     def _solved_problem(self) -> ContactProblem:
@@ -258,6 +264,16 @@ class ADMMResult:
             return "–"
         return "(" + ", ".join(f"{value:.6g}" for value in vector) + ")"
 
+    def _resolution_text(self) -> str:
+        """The contact zone's resolution, in a few words."""
+        r = self.resolution
+        if r is None or r.where is None:
+            return ""
+        verdict = "resolved" if r.resolved else "UNDER-RESOLVED"
+        if r.peak_error is None:
+            return f"; contact zone {verdict}"
+        return f"; contact zone {verdict} (peak pressure within about {abs(r.peak_error):.0%})"
+
     def _forces_text(self) -> str:
         """The forces on the body and how well they balance."""
         text = f"  contact force = {self._vector_text(self.contact_force)}"
@@ -296,7 +312,8 @@ class ADMMResult:
         if self.plan is not None:
             lines.append(f"  plan: {self.plan.describe()}")
         lines += [
-            f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}",
+            f"  contact nodes m = {self.num_contact_nodes}, active (λ > 0) = {self.num_active}"
+            + self._resolution_text(),
             f"  max pressure = {self.max_pressure:.6g}, mean pressure = "
             f"{self.mean_pressure:.6g}, contact {'length' if self._gdim == 2 else 'area'} = "
             f"{self.contact_area:.6g}",

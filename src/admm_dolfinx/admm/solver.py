@@ -114,6 +114,7 @@ from admm_dolfinx.problem.kkt import (
     gap_residuals,
 )
 from admm_dolfinx.problem.penetration import obstacle_penetration
+from admm_dolfinx.problem.resolution import assess_resolution
 
 __all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]
 
@@ -742,6 +743,7 @@ class ADMMSolver:
             )
         converged = status == "converged"
         penetration = obstacle_penetration(problem, u.x.array, lam, self.settings.kkt_tol)
+        resolution = assess_resolution(problem, u, lam)
         return ADMMResult(
             u=u,
             pressure=problem.pressure_function(lam),
@@ -769,11 +771,13 @@ class ADMMSolver:
             projection=self._step.statistics(),
             step1=step1_info,
             obstacle_penetration=penetration,
+            resolution=resolution,
             warning=" ".join(
                 text
                 for text in (
                     self._slow_convergence_warning(history, converged),
                     penetration.message() if penetration is not None else "",
+                    resolution.message(),
                 )
                 if text
             ),
