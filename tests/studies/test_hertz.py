@@ -1,9 +1,10 @@
 """Validation against Hertz's analytic solutions, in both contact models.
 
 * The plane-strain cylinder on a rigid plane (2D): the discrete pressure converges to
-  Hertz's at the observed rate, until the finite cylinder's own O(a/R) difference from
-  Hertz's half-space theory (about 0.4 % at a/R = 1/80) takes over; the tests use the
-  levels before that floor.
+  Hertz's at the observed rate, until the finite cylinder's own difference from
+  Hertz's half-space theory takes over (along the body's normal the peak's error stays
+  at 0.3-0.4 % at a/R = 1/80; along the obstacle's it keeps falling: the
+  hertz_validation page); the tests use the levels before that floor.
 * The sphere on a rigid plane (3D, a quarter by symmetry): the contact radius is
   bracketed by the mesh and the pressure profile converges; the peak pressure is
   within a few per cent on these coarse 3D meshes.

@@ -12,7 +12,7 @@ scale that belongs to the quantity an engineer reads:
 * **Force balance.** The sum of the equilibrium residual over the free dofs is what
   the contact force F_c, the support reactions R and the applied loads F_ext fail to
   balance: F_c + R + F_ext = −Σ_free (A u − f + NᵀMλ) (the rigid translations are in
-  A's kernel). It is measured against |F| = max(|F_c|, |F_ext|), so that a small
+  A's kernel). It is measured against ‖F‖ = max(‖F_c‖, ‖F_ext‖), so that a small
   contact force on a body whose internal forces are large is still right to the
   tolerance (the equilibrium residual, relative to those internal forces, is not
   enough for that).
@@ -58,7 +58,7 @@ class KKTResiduals:
         dual_feasibility: max_j (−λ_j)⁺ / ‖λ‖_∞ (adhesion, impossible here).
         complementarity: max_j λ_j abs(g_j − (N u)_j) / (‖λ‖_∞ ℓ).
         equilibrium: ‖A u − f + NᵀMλ‖₂ / max(‖A u‖₂, ‖f‖₂, ‖NᵀMλ‖₂), free dofs only.
-        force_balance: |F_c + R + F_ext| / max(|F_c|, |F_ext|): how far the contact
+        force_balance: ‖F_c + R + F_ext‖ / max(‖F_c‖, ‖F_ext‖): how far the contact
             force, the support reactions and the applied loads are from balancing
             (:func:`force_balance`).
     """
@@ -89,7 +89,7 @@ def contact_length(
 
     The larger of
 
-    * the normal displacement |(N u)_j| of the nodes in contact or penetrating (how far
+    * the normal displacement abs((N u)_j) of the nodes in contact or penetrating (how far
       the contact zone moved towards the obstacle), and
     * λ_j / k_j, the normal displacement node j's own pressure causes against its
       own stiffness k_j (``problem.contact_stiffness``): the scale of a body pressed
@@ -152,13 +152,13 @@ def contact_resultant(
 
 
 #: The force balance is judged to this many times the unit round-off of the sum of
-#: the forces it adds up (ε Σ_free |A u| + |f| + |NᵀMλ|): a contact force 1e-12 of the
+#: the forces it adds up (ε Σ_free abs(A u) + abs(f) + abs(NᵀMλ)): a contact force 1e-12 of the
 #: internal forces is not resolved below that, whatever the solver. Measured on a
 #: contact of one node under a prescribed displacement
 #: (``tests/problem/test_force_balance.py``), the exact solution's imbalance is half
 #: of that sum's ε.
 BALANCE_ROUNDOFF = 10.0
-#: The balance is relative to max(|F_c|, |F_ext|, this × ‖f‖₂), ‖f‖₂ the load with its
+#: The balance is relative to max(‖F_c‖, ‖F_ext‖, this × ‖f‖₂), ‖f‖₂ the load with its
 #: lifting by the prescribed displacements (the internal forces they cause): a contact
 #: force below 1e-8 of those, and no applied load, count as no force (nothing touches),
 #: where the equilibrium residual alone is the measure.
@@ -171,7 +171,7 @@ def force_balance(
     lam: npt.NDArray[np.float64],
     roundoff: float = 0.0,
 ) -> float:
-    """|F_c + R + F_ext| / max(|F_c|, |F_ext|) from Σ_free (A u − f + NᵀMλ); collective.
+    """‖F_c + R + F_ext‖ / max(‖F_c‖, ‖F_ext‖) from Σ_free (A u − f + NᵀMλ); collective.
 
     (With :data:`BALANCE_FLOOR` ‖f‖₂ as the smallest scale.)
 

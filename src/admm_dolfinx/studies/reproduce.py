@@ -307,7 +307,8 @@ def table3(progress: Progress, quick: bool = False) -> Table:
         + "; ".join(springs)
         + ". The paper's r* = 137 corresponds to k ≈ 2, and a smaller r* needs more "
         "iterations here: the gap to the paper's counts is this choice, not the ADMM.",
-        "Geometry: R = 8 quarter cylinder as read in the README (the paper's text is "
+        "Geometry: R = 8 quarter cylinder as read in the book (Reproducing the paper, "
+        "'What differs from the paper'; the paper's text is "
         "not self-consistent).",
     ]
     return table
