@@ -267,10 +267,10 @@ def example3(
 
     Args:
         comm: Communicator.
-        level: 0 is a graded gmsh mesh of about 200 nodes and 44 contact nodes (the
-            paper's has 198/45); each level splits every tetrahedron into 8 (about
-            1.1k/169, 7.4k/625, 52k/2.4k nodes; the paper's: 1289/153, 9245/603,
-            69897/2341).
+        level: 0 is a graded gmsh mesh of 198 nodes and 44 contact nodes (the
+            paper's has 198/45); each level splits every tetrahedron into 8 (1121/151,
+            7337/557, 52593/2137 nodes/contact nodes; the paper's: 1289/153, 9245/603,
+            69897/2341). ``tests/scenes/test_library_counts.py`` checks these counts.
         E: Young's modulus.
         nu: Poisson ratio.
         displacement: Downward displacement of the top face.
