@@ -83,7 +83,13 @@ def admm_sweep(problem, u_ref, label, tols, extra_time=0.0, **options):
         )
         for tol in tols:
             solver.update_settings(rtol=tol)
-            result = solver.solve()
+            try:
+                result = solver.solve()
+            except admm_dolfinx.ADMMConvergenceError as err:
+                # the paper's relative-change test can stop where the KKT check (the
+                # force balance included) refuses the answer: its error still counts
+                result = err.result
+                print(f"   {label} tol {tol:.0e}: not converged ({result.status})", flush=True)
             error = error_of(result.u.x.array, u_ref)
             elapsed = fixed + result.timings["iterations"]
             points.append(report((label, tol, elapsed, error, result.iterations)))

@@ -218,3 +218,15 @@ def test_a_problem_on_comm_self_logs_on_every_rank(caplog):
 def test_example1_refuses_an_absurd_mesh_size(h):
     with pytest.raises(ValueError, match=r"h must (lie in \[1/2048, 1\]|be a positive)"):
         example1(COMM, h=h, mesher="builtin")
+
+
+def test_a_refused_answer_names_the_force_balance_that_refused_it():
+    """The paper's test stopping where only the force balance is off says so."""
+    problem = example3(MPI.COMM_WORLD, level=1).problem(contact_normal="body")
+    with ADMMSolver(problem, mode="paper", penalty=7e6, rtol=1e-3) as solver:
+        with pytest.raises(ADMMConvergenceError) as err:
+            solver.solve()
+    kkt = err.value.result.kkt
+    assert kkt.force_balance > solver.settings.kkt_tol  # the only residual above it
+    assert max(kkt.primal_feasibility, kkt.complementarity, kkt.equilibrium) < 0.01
+    assert f"force balance {kkt.force_balance:.2e}" in str(err.value)

@@ -20,7 +20,15 @@ from admm_dolfinx.problem.resolution import ContactResolution
 if TYPE_CHECKING:
     from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["STATUSES", "ADMMConvergenceError", "ADMMResult", "PolishInfo", "Step1Info", "Timings"]
+__all__ = [
+    "STATUSES",
+    "ADMMConvergenceError",
+    "ADMMResult",
+    "PolishInfo",
+    "Step1Info",
+    "Timings",
+    "WarmStart",
+]
 
 #: ``ADMMResult.status`` values and what they mean.
 STATUSES = {
@@ -164,7 +172,7 @@ class ADMMResult:
         contact_force: The total force of the obstacle on the body, a gdim vector
             (:func:`admm_dolfinx.problem.forces.contact_force`). With the support
             reactions and the applied loads it balances to ``kkt.force_balance`` ×
-            max(|F_c|, |F_ext|), at most ``kkt_tol`` of it in a converged result.
+            max(‖F_c‖, ‖F_ext‖), at most ``kkt_tol`` of it in a converged result.
         applied_load: The resultant F_ext of the applied loads (of ``L``).
         contact_area: The measure of the contact zone, Σ M_jj over the active nodes
             (a length in 2D; :func:`admm_dolfinx.problem.contact_zone.contact_area`).
@@ -343,6 +351,19 @@ class ADMMResult:
         if self.warning:
             lines.append(f"  WARNING: {self.warning}")
         return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """A start for :meth:`~admm_dolfinx.ADMMSolver.solve` other than an earlier result.
+
+    Attributes:
+        u: A displacement on the problem's space (e.g. a coarser mesh's, interpolated).
+        multiplier: λ at the problem's owned contact nodes.
+    """
+
+    u: fem.Function
+    multiplier: npt.NDArray[np.float64]
 
 
 class ADMMConvergenceError(RuntimeError):

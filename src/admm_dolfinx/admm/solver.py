@@ -90,6 +90,7 @@ from admm_dolfinx.admm.result import (
     PolishInfo,
     Step1Info,
     Timings,
+    WarmStart,
 )
 from admm_dolfinx.admm.settings import ADMMSettings, check_penalty
 from admm_dolfinx.admm.step2 import MassMetricStep, SurfaceMetricStep
@@ -394,19 +395,20 @@ class ADMMSolver:
         return f"ADMMSolver: {self.plan.describe()}; {r}; settings: {self.settings.mode} mode"
 
     # ------------------------------------------------------------------ solve
-    def _warm_state(self, previous: ADMMResult, u_start: PETSc.Vec) -> np.ndarray:
+    def _warm_state(self, previous: ADMMResult | WarmStart, u_start: PETSc.Vec) -> np.ndarray:
         """The state z⁰ = (min(N u, g), max(λ, 0)) of an earlier result; u copied to u_start."""
         problem = self.problem
         m = problem.contact.gap.size
         ok = (
-            isinstance(previous, ADMMResult)
+            isinstance(previous, ADMMResult | WarmStart)
             and previous.u.function_space == problem.V
             and np.shape(previous.multiplier) == (m,)
         )
         if not problem.comm.allreduce(bool(ok), op=MPI.LAND):
             raise ValueError(
-                "`warm_start` must be an ADMMResult of this problem (same displacement "
-                "space and contact nodes), e.g. the result of the previous load step."
+                "`warm_start` must be an ADMMResult (or a WarmStart) of this problem (same "
+                "displacement space and contact nodes), e.g. the result of the previous load "
+                "step."
             )
         check_finite(
             problem.comm,
@@ -448,7 +450,7 @@ class ADMMSolver:
         self,
         callback: Callable[[int, PETSc.Vec, np.ndarray], bool] | None = None,
         *,
-        warm_start: ADMMResult | None = None,
+        warm_start: ADMMResult | WarmStart | None = None,
     ) -> ADMMResult:
         """Run ADMM from u⁰ = 0, λ⁰ = 0, p⁰ = min(0, g), or from an earlier result.
 
@@ -460,8 +462,10 @@ class ADMMSolver:
                 use this to stop at a given error against a reference). If it raises on
                 any rank, every rank raises.
             warm_start: A result of this problem (e.g. the previous load step, after
-                :meth:`ContactProblem.update_load` or ``update_obstacle``): ADMM starts
-                from its u, its λ and p⁰ = min(N u, g) with the current gap g.
+                :meth:`ContactProblem.update_load` or ``update_obstacle``), or a
+                :class:`~admm_dolfinx.admm.result.WarmStart` (u and λ from elsewhere, e.g.
+                a coarser mesh): ADMM starts from its u, its λ and p⁰ = min(N u, g) with
+                the current gap g.
 
         Returns:
             The converged result (or a callback's stop).
@@ -481,7 +485,7 @@ class ADMMSolver:
     def _solve(
         self,
         callback: Callable[[int, PETSc.Vec, np.ndarray], bool] | None,
-        warm_start: ADMMResult | None,
+        warm_start: ADMMResult | WarmStart | None,
     ) -> ADMMResult:
         """:meth:`solve`'s work (its log on rank 0 of the problem's communicator)."""
         self._prepare()
@@ -516,7 +520,8 @@ class ADMMSolver:
                 # the first inner solve as tight as the end of that solve: a loose one
                 # would throw a warm start at a fixed point away; after a load step it
                 # only asks more of the first (warm-started) CG solve than needed
-                last_residual = _final_residual(warm_start)
+                if isinstance(warm_start, ADMMResult):  # a WarmStart has no history
+                    last_residual = _final_residual(warm_start)
         if polisher is not None:
             polisher.reset()
         p_prev, lam = z[:m].copy(), z[m:]
@@ -823,7 +828,8 @@ class ADMMSolver:
         k, h, r = result.kkt, result.history, self.penalty
         residuals = (
             f"KKT residuals recomputed from (u, λ): penetration {k.primal_feasibility:.2e}, "
-            f"complementarity {k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}"
+            f"complementarity {k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}, "
+            f"force balance {k.force_balance:.2e}"
         )
         hand = self.penalty_estimate is None and self.surface_penalty is None
         if result.status == "inexact_step1":
