@@ -25,6 +25,7 @@ DEMOS: list[tuple[str, list[str]]] = [
     ("block_on_ball.py", ["--level", "0", "--polish"]),
     ("load_steps.py", ["--n", "16", "--steps", "3"]),
     ("gmsh_part.py", ["--h", "0.15"]),
+    ("adaptive_part.py", ["--target", "0.05"]),
 ]
 
 

@@ -19,6 +19,7 @@ Typical use inside a FEniCS workflow::
 from __future__ import annotations
 
 from admm_dolfinx import _bootstrap  # noqa: F401  (must precede dolfinx/petsc4py)
+from admm_dolfinx.adapt import AdaptiveLimitError, AdaptiveResult, solve_adaptive
 from admm_dolfinx.admm import ADMMConvergenceError, ADMMResult, ADMMSettings, ADMMSolver
 from admm_dolfinx.penalty import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.problem import Ball, ContactProblem, Obstacle, Plane
@@ -36,6 +37,8 @@ __all__ = [
     "ADMMResult",
     "ADMMSettings",
     "ADMMSolver",
+    "AdaptiveLimitError",
+    "AdaptiveResult",
     "Ball",
     "ContactProblem",
     "KKTResiduals",
@@ -44,4 +47,5 @@ __all__ = [
     "Plane",
     "__version__",
     "estimate_penalty",
+    "solve_adaptive",
 ]

@@ -8,6 +8,7 @@ the solver: :meth:`Scene.problem` hands its data to
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,6 +66,9 @@ class Scene:
         obstacle: The rigid obstacle.
         h: Nominal mesh size.
         info: Free-form facts for reports (counts, parameters).
+        surface: The body's true surface near Γ_C, as a map from points (k, gdim) to the
+            nearest points on it, where the mesh's facets are chords of a curved body
+            (for :func:`~admm_dolfinx.solve_adaptive`); None where the facets are it.
     """
 
     name: str
@@ -80,6 +84,7 @@ class Scene:
     obstacle: Obstacle
     h: float
     info: dict = field(default_factory=dict)
+    surface: Callable[[np.ndarray], np.ndarray] | None = None
 
     def problem(self, **kwargs) -> ContactProblem:
         """Build the contact problem of this scene (kwargs go to ContactProblem)."""
@@ -467,6 +472,22 @@ def hertz_solution(load: float, radius: float, E: float, nu: float) -> tuple[flo
     return a, 2.0 * load / (np.pi * a)
 
 
+def sphere_surface(center: Sequence[float], radius: float) -> Callable[[np.ndarray], np.ndarray]:
+    """The map of points to their nearest points on a circle (2D) or sphere (3D)."""
+    c = np.asarray(center, dtype=np.float64)
+
+    def project(x: np.ndarray) -> np.ndarray:
+        d = np.asarray(x, dtype=np.float64) - c[: np.shape(x)[1]]
+        length = np.linalg.norm(d, axis=1)
+        return c[: np.shape(x)[1]] + radius * d / np.where(length > 0.0, length, 1.0)[:, None]
+
+    return project
+
+
+#: Facet tags of the Hertz cylinder.
+HERTZ_TAGS = {"axis": 1, "top": 2, "arc": 3}
+
+
 def hertz(
     comm: MPI.Comm = MPI.COMM_WORLD,
     *,
@@ -475,6 +496,8 @@ def hertz(
     nu: float = 0.3,
     radius: float = 8.0,
     half_width: float = 0.6,
+    h_contact: float | None = None,
+    h_far: float = 0.6,
 ) -> Scene:
     """A cylinder on a rigid plane under a small load: Hertz's solution applies.
 
@@ -489,17 +512,47 @@ def hertz(
         nu: Poisson ratio.
         radius: R.
         half_width: The Hertz half-width a that the load is chosen to produce.
+        h_contact: The element size at the contact point (default a/4 / 2^level); the
+            size ``h_far`` (or more) leaves the mesh uniform, for adaptive refinement.
+        h_far: The element size away from the contact point.
 
     Returns:
         The scene; ``info`` holds the analytic ``a`` and ``p0``.
     """
     level = check_level("level", level)
+    h_contact = h_contact if h_contact is not None else half_width / 4.0 / 2**level
+    graded = h_contact < h_far
+    data = quarter_disc(
+        comm,
+        radius,
+        h_far,
+        min(h_contact, h_far),
+        HERTZ_TAGS,
+        refine_radius=1.5 * half_width if graded else None,
+    )
+    msh, facet_tags = mesh_and_facet_tags(data)
+    scene = hertz_on(msh, facet_tags, E=E, nu=nu, radius=radius, half_width=half_width)
+    scene.h = min(h_contact, h_far)
+    scene.info["level"] = level
+    return scene
+
+
+def hertz_on(
+    msh: Mesh,
+    facet_tags: MeshTags,
+    *,
+    E: float = 2000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    half_width: float = 0.6,
+) -> Scene:
+    """The Hertz cylinder of :func:`hertz` on a given mesh of its quarter (tags ``HERTZ_TAGS``).
+
+    What :func:`~admm_dolfinx.solve_adaptive` rebuilds on every refined mesh.
+    """
+    tags = HERTZ_TAGS
     e_star = E / (1.0 - nu**2)
     total = half_width**2 * np.pi * e_star / (4.0 * radius)  # P on the whole cylinder
-    h_contact = half_width / 4.0 / 2**level
-    tags = {"axis": 1, "top": 2, "arc": 3}
-    data = quarter_disc(comm, radius, 0.6, h_contact, tags, refine_radius=1.5 * half_width)
-    msh, facet_tags = mesh_and_facet_tags(data)
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (2,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -519,16 +572,17 @@ def hertz(
         bcs=[fem.dirichletbc(0.0, axis, V.sub(0))],
         contact_marker=tags["arc"],
         obstacle=Plane(point=(0.0, 0.0), normal=(0.0, 1.0)),
-        h=h_contact,
+        h=half_width / 4.0,
         info={
             "E": E,
             "nu": nu,
             "radius": radius,
             "load": total,
-            "level": level,
+            "level": 0,
             "a": a_exact,
             "p0": p0,
         },
+        surface=sphere_surface((0.0, radius), radius),
     )
 
 
@@ -618,6 +672,10 @@ def hertz_sphere_solution(load: float, radius: float, E: float, nu: float) -> tu
     return a, 3.0 * load / (2.0 * np.pi * a**2)
 
 
+#: Facet tags of the Hertz sphere.
+HERTZ_SPHERE_TAGS = {"top": 1, "surface": 2, "sym_x": 3, "sym_y": 4}
+
+
 def hertz_sphere(
     comm: MPI.Comm = MPI.COMM_WORLD,
     *,
@@ -628,6 +686,7 @@ def hertz_sphere(
     half_width: float = 0.4,
     h_far: float = 0.1,
     refine: float = 1.5,
+    h_contact: float | None = None,
 ) -> Scene:
     """A sphere on a rigid plane under a small load (3D Hertz), by symmetry a quarter.
 
@@ -648,26 +707,46 @@ def hertz_sphere(
         half_width: The Hertz contact radius a that the load is chosen to produce.
         h_far: Element size away from the contact zone, relative to R.
         refine: Radius of the refined zone around the contact point, relative to a.
+        h_contact: The element size at the contact point (default a/3 / 2^level).
 
     Returns:
         The scene; ``info`` holds the analytic ``a``, ``p0`` and the total ``load`` F.
     """
     level = check_level("level", level)
-    e_star = E / (1.0 - nu**2)
-    total = 4.0 * e_star * half_width**3 / (3.0 * radius)  # F for a = half_width
-    h_contact = half_width / 3.0 / 2**level
-    tags = {"top": 1, "surface": 2, "sym_x": 3, "sym_y": 4}
+    h_contact = h_contact if h_contact is not None else half_width / 3.0 / 2**level
     data = lower_ball(
         comm,
         3,
         radius,
         h_far * radius,
-        h_contact,
-        tags,
+        min(h_contact, h_far * radius),
+        HERTZ_SPHERE_TAGS,
         refine_radius=refine * half_width,
         quarter=True,
     )
     msh, facet_tags = mesh_and_facet_tags(data)
+    scene = hertz_sphere_on(msh, facet_tags, E=E, nu=nu, radius=radius, half_width=half_width)
+    scene.h = min(h_contact, h_far * radius)
+    scene.info["level"] = level
+    return scene
+
+
+def hertz_sphere_on(
+    msh: Mesh,
+    facet_tags: MeshTags,
+    *,
+    E: float = 1000.0,
+    nu: float = 0.3,
+    radius: float = 8.0,
+    half_width: float = 0.4,
+) -> Scene:
+    """The Hertz sphere of :func:`hertz_sphere` on a given mesh (tags ``HERTZ_SPHERE_TAGS``).
+
+    What :func:`~admm_dolfinx.solve_adaptive` rebuilds on every refined mesh.
+    """
+    tags = HERTZ_SPHERE_TAGS
+    e_star = E / (1.0 - nu**2)
+    total = 4.0 * e_star * half_width**3 / (3.0 * radius)  # F for a = half_width
     material = LinearElastic(E, nu)
     V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -696,17 +775,18 @@ def hertz_sphere(
         bcs=bcs,
         contact_marker=tags["surface"],
         obstacle=Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0)),
-        h=h_contact,
+        h=half_width / 3.0,
         info={
             "E": E,
             "nu": nu,
             "radius": radius,
             "load": total,
-            "level": level,
+            "level": 0,
             "a": a_exact,
             "p0": p0,
             "quarter": True,
         },
+        surface=sphere_surface((0.0, 0.0, radius), radius),
     )
 
 

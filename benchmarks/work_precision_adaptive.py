@@ -1,0 +1,269 @@
+"""Work against precision for the engineer's numbers: uniform, hand-graded and adaptive meshes.
+
+    python benchmarks/work_precision_adaptive.py           # cylinder and sphere, to 1 %
+    python benchmarks/work_precision_adaptive.py --quick   # the cylinder, coarse
+
+The error of Hertz's peak pressure p0 (the peak recovered from the nodal pressures,
+:mod:`admm_dolfinx.adapt.recovery`, the quantity ``solve_adaptive`` controls; the
+largest nodal value beside it), of the contact half-width (radius) a and of the
+total contact force against their analytic values, with the CPU seconds and the dofs
+that bought them, for three ways to the same answer, each solved with the package's
+default settings:
+
+* **uniform**: a coarse uniform mesh, every edge split at each level (the contact
+  boundary's new vertices placed on the true circle or sphere);
+* **graded**: the gmsh mesh graded by hand around the contact point
+  (:func:`~admm_dolfinx.scenes.hertz`, :func:`~admm_dolfinx.scenes.library.hertz_sphere`
+  at their levels: element size a/4 (cylinder) or a/3 (sphere) halved per level);
+* **adaptive**: :func:`~admm_dolfinx.solve_adaptive` from the same coarse uniform mesh
+  with ``target=0.01`` on the peak pressure; its CPU is the sum over its levels (each
+  solve, estimate, marking and refinement).
+
+The bodies: the plane-strain cylinder of radius R = 8 with a = R/80, and the quarter
+sphere of radius R = 8 with a = R/80: Hertz's half-space model is itself accurate far
+below 1 % there. Every row's CPU seconds are process time summed over the ranks,
+measured in this one run. The summary table gives, at 1 % on p0, the CPU of the
+cheapest uniform mesh that reaches it and of the adaptive run (their ratio), and the
+dofs of the first graded and the adaptive mesh that reach it.
+
+Writes out_benchmarks/work_precision_adaptive_*.csv and work_precision_adaptive.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+from tables import print_and_save
+
+import admm_dolfinx as ad
+from admm_dolfinx.adapt.marking import all_local_edges
+from admm_dolfinx.adapt.recovery import recovered_peak_pressure
+from admm_dolfinx.adapt.refinement import refine_contact_mesh
+from admm_dolfinx.scenes import library as lib
+from admm_dolfinx.studies.hertz import hertz_errors
+
+#: The error asked of the peak pressure.
+TARGET = 0.01
+#: R/a for both bodies.
+SLENDERNESS = 80.0
+RADIUS = 8.0
+
+
+def _cpu(comm) -> float:
+    return float(comm.allreduce(time.process_time(), op=MPI.SUM))
+
+
+def _cylinder(comm, **mesh):
+    a = RADIUS / SLENDERNESS
+    return lib.hertz(comm, half_width=a, radius=RADIUS, **mesh), (
+        lambda m, t: lib.hertz_on(m, t, half_width=a, radius=RADIUS)
+    )
+
+
+def _sphere(comm, **mesh):
+    a = RADIUS / SLENDERNESS
+    return lib.hertz_sphere(comm, half_width=a, radius=RADIUS, **mesh), (
+        lambda m, t: lib.hertz_sphere_on(m, t, half_width=a, radius=RADIUS)
+    )
+
+
+#: body -> (scene maker, coarse uniform mesh arguments, uniform levels, graded levels)
+BODIES = {
+    "cylinder": (_cylinder, {"h_contact": 1.0, "h_far": 1.0}, 8, 6),
+    "sphere": (_sphere, {"h_far": 0.1, "h_contact": 0.8}, 3, 3),
+}
+
+
+def _row(body, method, level, scene, problem, result, cpu):
+    errors = hertz_errors(scene, problem, result.multiplier)
+    a = scene.info["a"]
+    return {
+        "body": body,
+        "method": method,
+        "level": level,
+        "dofs": problem.V.dofmap.index_map.size_global * problem.V.dofmap.index_map_bs,
+        "m": problem.num_contact_nodes,
+        "p0 error": recovered_peak_pressure(problem, result.multiplier) / scene.info["p0"] - 1.0,
+        "nodal max error": errors.p0_error,
+        "a error": max(abs(errors.a_inside[0] - a), abs(errors.a_inside[1] - a)) / a,
+        "force error": errors.force_error,
+        "iterations": result.iterations,
+        "cpu [s]": cpu,
+    }
+
+
+def _solve(problem):
+    with ad.ADMMSolver(problem) as solver:
+        return solver.solve()
+
+
+def uniform(comm, body, levels):
+    make, coarse, *_ = BODIES[body]
+    scene, rebuild = make(comm, **coarse)
+    msh, tags = scene.mesh, scene.facet_tags
+    rows = []
+    for level in range(levels):
+        cpu0 = _cpu(comm)
+        scene = rebuild(msh, tags)
+        problem = scene.problem()
+        result = _solve(problem)
+        rows.append(_row(body, "uniform", level, scene, problem, result, _cpu(comm) - cpu0))
+        problem.destroy()
+        if level + 1 < levels:  # the refinement is not counted: it is cheap and done once
+            msh, tags = refine_contact_mesh(
+                msh, tags, all_local_edges(msh), scene.contact_marker, scene.surface
+            )
+    return rows
+
+
+def graded(comm, body, levels):
+    make, *_ = BODIES[body]
+    rows = []
+    for level in range(levels):
+        cpu0 = _cpu(comm)
+        scene, _ = make(comm, level=level)
+        problem = scene.problem()
+        result = _solve(problem)
+        rows.append(_row(body, "graded", level, scene, problem, result, _cpu(comm) - cpu0))
+        problem.destroy()
+    return rows
+
+
+def adaptive(comm, body, max_levels):
+    make, coarse, *_ = BODIES[body]
+    scene, rebuild = make(comm, **coarse)
+    try:
+        run = ad.solve_adaptive(
+            lambda m, t: rebuild(m, t).problem(),
+            scene.mesh,
+            scene.facet_tags,
+            target=TARGET,
+            surface=scene.surface,
+            max_levels=max_levels,
+        )
+    except ad.AdaptiveLimitError as err:
+        run = err.adaptive
+    final = rebuild(run.mesh, run.facet_tags)
+    row = _row(body, "adaptive", len(run.history) - 1, final, run.problem, run.result, 0.0)
+    row["cpu [s]"] = sum(h.cpu_seconds for h in run.history)
+    row["estimate"] = run.estimated_error
+    levels = [
+        {
+            "body": body,
+            "level": h.level,
+            "dofs": h.dofs,
+            "m": h.contact_nodes,
+            "p0 error": h.quantity / scene.info["p0"] - 1.0,
+            "estimate": "–" if h.estimate is None else f"{h.estimate:.2e}",
+            "iterations": h.iterations,
+            "cpu [s]": f"{h.cpu_seconds:.2f}",
+        }
+        for h in run.history
+    ]
+    return row, levels
+
+
+def _fmt(row):
+    out = dict(row)
+    for key in ("p0 error", "nodal max error", "a error", "force error"):
+        if isinstance(out.get(key), float):
+            out[key] = f"{out[key]:+.2e}"
+    if isinstance(out.get("cpu [s]"), float):
+        out["cpu [s]"] = f"{out['cpu [s]']:.2f}"
+    if isinstance(out.get("estimate"), float):
+        out["estimate"] = f"{out['estimate']:.2e}"
+    return out
+
+
+def first_within(rows, target):
+    """The first row from which on every finer row's p0 error is within target."""
+    for i, row in enumerate(rows):
+        if all(abs(r["p0 error"]) <= target for r in rows[i:]):
+            return row
+    return None
+
+
+def summary(body, uniform_rows, graded_rows, adaptive_row):
+    u, g = first_within(uniform_rows, TARGET), first_within(graded_rows, TARGET)
+    a = adaptive_row if abs(adaptive_row["p0 error"]) <= TARGET else None
+    if u is None:  # not reached: the finest uniform mesh's CPU bounds the ratio from below
+        u_cpu, u_text = (
+            uniform_rows[-1]["cpu [s]"],
+            f"> {uniform_rows[-1]['cpu [s]']:.2f} (not reached)",
+        )
+    else:
+        u_cpu, u_text = u["cpu [s]"], f"{u['cpu [s]']:.2f}"
+    return {
+        "body": body,
+        "uniform cpu [s]": u_text,
+        "adaptive cpu [s]": f"{adaptive_row['cpu [s]']:.2f}",
+        "uniform / adaptive cpu": "–"
+        if a is None
+        else ((">" if u is None else "") + f"{u_cpu / adaptive_row['cpu [s]']:.1f}"),
+        "graded dofs": "not reached" if g is None else g["dofs"],
+        "adaptive dofs": adaptive_row["dofs"],
+        "adaptive p0 error": f"{adaptive_row['p0 error']:+.2e}",
+        "estimate": f"{adaptive_row['estimate']:.2e}" if adaptive_row["estimate"] else "–",
+    }
+
+
+def plot(rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bodies = sorted({r["body"] for r in rows})
+    fig, axes = plt.subplots(1, len(bodies), figsize=(5.5 * len(bodies), 4.2), squeeze=False)
+    for ax, body in zip(axes[0], bodies, strict=True):
+        for method, style in (("uniform", "o-"), ("graded", "s-"), ("adaptive", "*-")):
+            sel = [r for r in rows if r["body"] == body and r["method"] == method]
+            if sel:
+                ax.loglog(
+                    [r["cpu [s]"] for r in sel],
+                    [max(abs(r["p0 error"]), 1e-5) for r in sel],
+                    style,
+                    label=method,
+                )
+        ax.axhline(TARGET, color="grey", lw=0.8, ls="--")
+        ax.set_xlabel("CPU seconds")
+        ax.set_ylabel("relative error of the peak pressure")
+        ax.set_title(f"Hertz {body}, a = R/{SLENDERNESS:g}")
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--out", default="out_benchmarks")
+    args = parser.parse_args()
+    comm = MPI.COMM_WORLD
+    out = Path(args.out)
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    comm.barrier()
+    bodies = {"cylinder": BODIES["cylinder"]} if args.quick else BODIES
+    rows, summaries, histories = [], [], []
+    for body, (_, _, n_uniform, n_graded) in bodies.items():
+        if args.quick:
+            n_uniform, n_graded = 3, 2
+        u = uniform(comm, body, n_uniform)
+        g = graded(comm, body, n_graded)
+        a, levels = adaptive(comm, body, 3 if args.quick else 12)
+        rows += u + g + [a]
+        histories += levels
+        summaries.append(summary(body, u, g, a))
+    if comm.rank == 0:
+        print_and_save([_fmt(r) for r in rows], out / "work_precision_adaptive_methods.csv")
+        print_and_save(histories, out / "work_precision_adaptive_levels.csv")
+        print_and_save(summaries, out / "work_precision_adaptive_at_one_percent.csv")
+        plot(rows, out / "work_precision_adaptive.png")
+
+
+if __name__ == "__main__":
+    main()

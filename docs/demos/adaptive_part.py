@@ -1,0 +1,1 @@
+../../demos/adaptive_part.py
