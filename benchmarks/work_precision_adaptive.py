@@ -20,11 +20,14 @@ default settings:
   solve, estimate, marking and refinement).
 
 The bodies: the plane-strain cylinder of radius R = 8 with a = R/80, and the quarter
-sphere of radius R = 8 with a = R/80: Hertz's half-space model is itself accurate far
-below 1 % there. Every row's CPU seconds are process time summed over the ranks,
-measured in this one run. The summary table gives, at 1 % on p0, the CPU of the
-cheapest uniform mesh that reaches it and of the adaptive run (their ratio), and the
-dofs of the first graded and the adaptive mesh that reach it.
+sphere of radius R = 8 with a = R/80, where Hertz's half-space model is close enough
+to the elastic body for a 1 % target (the finest graded rows show how close). Every
+row's CPU seconds are process time summed over the ranks, measured in this one run.
+The summary table gives, at 1 % on p0, the CPU of the cheapest uniform mesh from
+which on every uniform level is within 1 %, and of the adaptive run (all its levels:
+it needs three resolved ones to estimate its error), their ratio, and the dofs and
+CPU of the first graded mesh from which on every graded level is within 1 % (found
+by comparing with Hertz's answer: a user without one needs the next levels to know).
 
 Writes out_benchmarks/work_precision_adaptive_*.csv and work_precision_adaptive.png.
 """
@@ -32,6 +35,7 @@ Writes out_benchmarks/work_precision_adaptive_*.csv and work_precision_adaptive.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -156,7 +160,7 @@ def adaptive(comm, body, max_levels):
             "level": h.level,
             "dofs": h.dofs,
             "m": h.contact_nodes,
-            "p0 error": h.quantity / scene.info["p0"] - 1.0,
+            "p0 error": f"{h.quantity / scene.info['p0'] - 1.0:+.2e}",
             "estimate": "–" if h.estimate is None else f"{h.estimate:.2e}",
             "iterations": h.iterations,
             "cpu [s]": f"{h.cpu_seconds:.2f}",
@@ -189,28 +193,29 @@ def first_within(rows, target):
 def summary(body, uniform_rows, graded_rows, adaptive_row):
     u, g = first_within(uniform_rows, TARGET), first_within(graded_rows, TARGET)
     a = adaptive_row if abs(adaptive_row["p0 error"]) <= TARGET else None
-    if u is None:  # not reached: the finest uniform mesh's CPU bounds the ratio from below
-        u_cpu, u_text = (
-            uniform_rows[-1]["cpu [s]"],
-            f"> {uniform_rows[-1]['cpu [s]']:.2f} (not reached)",
+    last = uniform_rows[-1]
+    if u is None:  # not reached on the meshes this machine holds
+        u_text = (
+            f"not reached ({last['p0 error']:+.0%} at {last['dofs']} dofs, {last['cpu [s]']:.2f} s)"
         )
     else:
-        u_cpu, u_text = u["cpu [s]"], f"{u['cpu [s]']:.2f}"
+        u_text = f"{u['cpu [s]']:.2f} ({u['dofs']} dofs)"
     return {
         "body": body,
         "uniform cpu [s]": u_text,
         "adaptive cpu [s]": f"{adaptive_row['cpu [s]']:.2f}",
         "uniform / adaptive cpu": "–"
-        if a is None
-        else ((">" if u is None else "") + f"{u_cpu / adaptive_row['cpu [s]']:.1f}"),
+        if a is None or u is None
+        else f"{u['cpu [s]'] / adaptive_row['cpu [s]']:.1f}",
         "graded dofs": "not reached" if g is None else g["dofs"],
+        "graded cpu [s]": "–" if g is None else f"{g['cpu [s]']:.2f}",
         "adaptive dofs": adaptive_row["dofs"],
         "adaptive p0 error": f"{adaptive_row['p0 error']:+.2e}",
         "estimate": f"{adaptive_row['estimate']:.2e}" if adaptive_row["estimate"] else "–",
     }
 
 
-def plot(rows, path):
+def plot(rows, path, full_run=False):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -235,6 +240,8 @@ def plot(rows, path):
         ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    if full_run:  # the book's figure
+        fig.savefig(Path(__file__).resolve().parents[1] / "docs" / "figures" / path.name, dpi=120)
 
 
 def main():
@@ -262,7 +269,8 @@ def main():
         print_and_save([_fmt(r) for r in rows], out / "work_precision_adaptive_methods.csv")
         print_and_save(histories, out / "work_precision_adaptive_levels.csv")
         print_and_save(summaries, out / "work_precision_adaptive_at_one_percent.csv")
-        plot(rows, out / "work_precision_adaptive.png")
+        full = not args.quick and os.environ.get("ADMM_BENCHMARK_PAGE", "1") != "0"
+        plot(rows, out / "work_precision_adaptive.png", full_run=full)
 
 
 if __name__ == "__main__":
