@@ -168,3 +168,30 @@ def test_refuses_a_build_that_does_not_return_a_problem_on_its_mesh():
     other = lib.hertz(MPI.COMM_WORLD, half_width=0.1, h_contact=1.0, h_far=1.0)
     with pytest.raises(ValueError, match="on the mesh it is given"):
         ad.solve_adaptive(lambda m, t: other.problem(), scene.mesh, scene.facet_tags, target=0.01)
+
+
+@pytest.mark.timeout(300)
+def test_flat_punch_is_not_called_done_while_its_force_is_off():
+    """A zone that is not Hertzian gives no estimate rather than a false one.
+
+    Boussinesq's flat punch: the contact zone's edge is a staircase of nodes on any
+    mesh that does not follow it, and the force converges erratically (it stalls
+    near 3 % off for levels on end): successive differences would pass it for
+    converged. The zone is never judged resolved, so no estimate is given, and the
+    run ends with AdaptiveLimitError instead of a claim.
+    """
+    scene = lib.flat_punch(MPI.COMM_WORLD, size=1000.0)
+    with pytest.raises(ad.AdaptiveLimitError) as err:
+        ad.solve_adaptive(
+            lambda m, t: lib.flat_punch_on(m, t).problem(),
+            scene.mesh,
+            scene.facet_tags,
+            target=0.01,
+            quantity="contact_force",
+            max_levels=11,
+        )
+    adaptive = err.value.adaptive
+    force = np.linalg.norm(adaptive.result.contact_force)
+    assert abs(force / scene.info["force"] - 1.0) > 0.01  # it is indeed not there
+    assert not adaptive.converged
+    assert adaptive.history[-1].active > 1  # the fallback found the zone

@@ -278,7 +278,9 @@ def _adapt(
             result = solver.solve(warm_start=warm)
         values.append(quantity_value(quantity, result))
         zone = result.resolution
-        resolved.append(bool(zone is not None and zone.resolved and result.num_active > 0))
+        # a zone of one node (or a few, in 3D) is not resolved whatever its shape
+        few = 1 if problem.gdim == 2 else 3
+        resolved.append(bool(zone is not None and zone.resolved and result.num_active > few))
         estimate = level_estimate(values, resolved)
         done = estimate is not None and estimate <= target
         indicators = edge_indicators(problem, result, surface)

@@ -76,6 +76,8 @@ def contact_zone_edges(
 ) -> npt.NDArray[np.int32]:
     """The local edges of the cells at the contact zone (its nodes and their neighbours).
 
+    Where nothing is in contact, the zone is all of Γ_C that the obstacle can reach.
+
     Args:
         problem: The contact problem.
         multiplier: λ at the owned contact nodes.
@@ -92,6 +94,14 @@ def contact_zone_edges(
     carrier.x.array[:] = active
     carrier.x.scatter_forward()
     vertex_active = carrier.x.array[_vertex_to_q(problem)] > 0.5
+    if not msh.comm.allreduce(bool(np.any(active)), op=MPI.LOR):
+        # nothing touches on this mesh (the contact may fall between its nodes): the
+        # whole of Γ_C where the obstacle can reach (a finite gap) is the zone
+        reach = np.zeros_like(active)
+        reach[problem.contact.dofs] = np.isfinite(problem.contact.gap)
+        carrier.x.array[:] = reach
+        carrier.x.scatter_forward()
+        vertex_active = carrier.x.array[_vertex_to_q(problem)] > 0.5
     facets = marked_facets(problem.facet_tags, problem.contact_marker)
     msh.topology.create_connectivity(fdim, 0)
     f2v = msh.topology.connectivity(fdim, 0)

@@ -33,12 +33,16 @@ from admm_dolfinx.scenes.meshing import (
 )
 
 __all__ = [
+    "FLAT_PUNCH_TAGS",
     "SCENES",
+    "FlatPunch",
     "Scene",
     "example1",
     "example2",
     "example3",
     "example3_hexahedral",
+    "flat_punch",
+    "flat_punch_on",
     "hertz",
     "hertz_solution",
     "hertz_sphere",
@@ -787,6 +791,147 @@ def hertz_sphere_on(
             "quarter": True,
         },
         surface=sphere_surface((0.0, 0.0, radius), radius),
+    )
+
+
+class FlatPunch(Obstacle):
+    """A rigid flat-ended circular punch pressed down into a body below it (3D).
+
+    Its flat end is the disc of radius ``radius`` around the z axis at height
+    ``-depth``; its normal points down, towards the body. A point of the body under
+    the disc has the signed distance −(z + depth) (negative: inside the punch); a
+    point outside the disc's radius can never touch it (+inf).
+
+    Args:
+        radius: The punch's radius a.
+        depth: How far its end is pressed below z = 0, the body's free surface.
+    """
+
+    def __init__(self, radius: float, depth: float):
+        check_lengths(radius=radius, depth=depth)
+        self.radius, self.depth = float(radius), float(depth)
+
+    def check_dimension(self, gdim: int) -> None:  # noqa: D102
+        if gdim != 3:
+            raise ValueError(f"FlatPunch is a 3D obstacle; the mesh is {gdim}D.")
+
+    def signed_distance(self, x):  # noqa: D102
+        x = np.asarray(x, dtype=np.float64)
+        under = np.hypot(x[:, 0], x[:, 1]) <= self.radius
+        g = np.where(under, -(x[:, 2] + self.depth), np.inf)
+        normal = np.zeros_like(x)
+        normal[:, 2] = -1.0
+        return g, normal
+
+    def __repr__(self) -> str:
+        return f"FlatPunch(radius={self.radius}, depth={self.depth})"
+
+
+#: Facet tags of the flat-punch block.
+FLAT_PUNCH_TAGS = {"top": 1, "bottom": 2, "sym_x": 3, "sym_y": 4, "side": 5}
+
+
+def flat_punch(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    radius: float = 1.0,
+    depth: float = 0.01,
+    size: float = 1000.0,
+    cells: int = 4,
+    E: float = 1.0,
+    nu: float = 0.3,
+) -> Scene:
+    """A rigid flat circular punch pressed into a large block: Boussinesq's solution applies.
+
+    A quarter (x, y ≥ 0, symmetry conditions on x = 0 and y = 0) of the block
+    [−L, L]² × [−L, 0] with its bottom fixed, under a :class:`FlatPunch` of radius a
+    pressed ``depth`` = δ into its top. On a half-space the force is F = 2 a E* δ
+    (E* = E/(1 − ν²)) and the pressure p(r) = F / (2π a sqrt(a² − r²)), infinite at the
+    punch's edge: a case for the contact force, not the peak pressure. The block's
+    size L (1000 a by default) makes the half-space's answer exact to well under 1 %,
+    and the mesh is a coarse uniform one (``cells`` per side) for
+    :func:`~admm_dolfinx.solve_adaptive` to refine.
+
+    Args:
+        comm: Communicator.
+        radius: The punch's radius a.
+        depth: δ.
+        size: L.
+        cells: Tetrahedra boxes per side of the coarse mesh.
+        E: Young's modulus.
+        nu: Poisson ratio.
+
+    Returns:
+        The scene; ``info["force"]`` is Boussinesq's force on the quarter, F/4.
+    """
+    check_lengths(radius=radius, depth=depth, size=size)
+    msh = create_box(
+        comm, [[0.0, 0.0, -size], [size, size, 0.0]], [cells] * 3, CellType.tetrahedron
+    )
+    fdim = 2
+    msh.topology.create_connectivity(fdim, 3)
+    from dolfinx import mesh as dmesh
+
+    boundary = dmesh.exterior_facet_indices(msh.topology)
+    mid = dmesh.compute_midpoints(msh, fdim, boundary)
+    tol = 1e-9 * size
+    values = np.full(boundary.size, FLAT_PUNCH_TAGS["side"], dtype=np.int32)
+    values[np.abs(mid[:, 0]) < tol] = FLAT_PUNCH_TAGS["sym_x"]
+    values[np.abs(mid[:, 1]) < tol] = FLAT_PUNCH_TAGS["sym_y"]
+    values[np.abs(mid[:, 2] + size) < tol] = FLAT_PUNCH_TAGS["bottom"]
+    values[np.abs(mid[:, 2]) < tol] = FLAT_PUNCH_TAGS["top"]
+    tags = dmesh.meshtags(msh, fdim, boundary.astype(np.int32), values)
+    return flat_punch_on(msh, tags, radius=radius, depth=depth, E=E, nu=nu)
+
+
+def flat_punch_on(
+    msh: Mesh,
+    facet_tags: MeshTags,
+    *,
+    radius: float = 1.0,
+    depth: float = 0.01,
+    E: float = 1.0,
+    nu: float = 0.3,
+) -> Scene:
+    """The flat punch of :func:`flat_punch` on a given mesh (tags ``FLAT_PUNCH_TAGS``).
+
+    What :func:`~admm_dolfinx.solve_adaptive` rebuilds on every refined mesh.
+    """
+    tags = FLAT_PUNCH_TAGS
+    material = LinearElastic(E, nu)
+    V = fem.functionspace(msh, ("Lagrange", 1, (3,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    bcs = [
+        fem.dirichletbc(
+            0.0, fem.locate_dofs_topological(V.sub(i), 2, facet_tags.find(tags[name])), V.sub(i)
+        )
+        for i, name in ((0, "sym_x"), (1, "sym_y"))
+    ]
+    bottom = fem.locate_dofs_topological(V, 2, facet_tags.find(tags["bottom"]))
+    bcs.append(fem.dirichletbc(fem.Constant(msh, np.zeros(3)), bottom, V))
+    e_star = E / (1.0 - nu**2)
+    return Scene(
+        name="flat_punch",
+        mesh=msh,
+        facet_tags=facet_tags,
+        markers=tags,
+        material=material,
+        V=V,
+        a=material.bilinear_form(u, v),
+        L=ufl.dot(fem.Constant(msh, np.zeros(3)), v) * ufl.dx,
+        bcs=bcs,
+        contact_marker=tags["top"],
+        obstacle=FlatPunch(radius, depth),
+        h=radius,
+        info={
+            "E": E,
+            "nu": nu,
+            "a": radius,
+            "depth": depth,
+            "force": 0.25 * 2.0 * radius * e_star * depth,
+            "area": 0.25 * np.pi * radius**2,
+            "quarter": True,
+        },
     )
 
 
