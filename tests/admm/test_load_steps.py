@@ -160,9 +160,13 @@ def test_warm_start_from_another_problem_is_refused():
     with ADMMSolver(other, penalty=3000.0) as solver:
         foreign = solver.solve()
     with ADMMSolver(problem, penalty=3000.0) as solver:
-        with pytest.raises(ValueError, match="must be an ADMMResult of this problem"):
+        with pytest.raises(
+            ValueError, match=r"must be an ADMMResult \(or a WarmStart\) of this problem"
+        ):
             solver.solve(warm_start=foreign)
-        with pytest.raises(ValueError, match="must be an ADMMResult of this problem"):
+        with pytest.raises(
+            ValueError, match=r"must be an ADMMResult \(or a WarmStart\) of this problem"
+        ):
             solver.solve(warm_start="previous")
 
 
