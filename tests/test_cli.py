@@ -163,6 +163,8 @@ def test_a_figure_that_fails_on_rank_0_fails_on_every_rank(tmp_path_factory, mon
     [
         (["run", "example1", "--h", "-1"], "h must be a positive finite length"),
         (["run", "example1", "--h", "0.25", "--penalty", "-5"], "penalty r must be a positive"),
+        (["run", "example1", "--level", "2"], "example1's mesh is set by --h"),
+        (["run", "example2", "--h", "0.1"], "example2's is set by --level"),
     ],
 )
 def test_cli_bad_input_is_an_error_message(argv, message, capsys):

@@ -38,8 +38,20 @@ def _penalty(text: str):
 
 def _build_scene(args):
     if args.scene == "example1":
-        return SCENES["example1"](h=args.h, mesher=args.mesher)
-    return SCENES[args.scene](level=args.level)
+        if args.level is not None:
+            raise ValueError(
+                "--level sets the mesh of example2, example3, hertz and hertz_sphere; "
+                "example1's mesh is set by --h (e.g. --h 0.015625)."
+            )
+        return SCENES["example1"](
+            h=1 / 32 if args.h is None else args.h, mesher=args.mesher or "gmsh"
+        )
+    if args.h is not None or args.mesher is not None:
+        raise ValueError(
+            f"--h and --mesher set example1's mesh; {args.scene}'s is set by --level "
+            "(each level halves the element size)."
+        )
+    return SCENES[args.scene](level=0 if args.level is None else args.level)
 
 
 def cmd_run(args) -> int:
@@ -156,18 +168,18 @@ def build_parser() -> argparse.ArgumentParser:
         "(block on a half-ball).",
     )
     run.add_argument("scene", choices=sorted(SCENES))
-    run.add_argument("--h", type=float, default=1 / 32, help="example1: mesh size")
+    run.add_argument("--h", type=float, default=None, help="example1: mesh size (1/32)")
     run.add_argument(
         "--mesher",
         choices=["gmsh", "builtin"],
-        default="gmsh",
-        help="example1: unstructured gmsh or structured DOLFINx mesh",
+        default=None,
+        help="example1: unstructured gmsh (default) or structured DOLFINx mesh",
     )
     run.add_argument(
         "--level",
         type=int,
-        default=0,
-        help="example2/3: mesh level (each level halves the element size)",
+        default=None,
+        help="the other scenes: mesh level (0, default; each level halves the element size)",
     )
     run.add_argument(
         "--penalty", type=_penalty, default="auto", help="penalty r, or 'auto' for r* (default)"

@@ -135,7 +135,7 @@ class PolishInfo:
         return asdict(self)
 
 
-@dataclass
+@dataclass(repr=False)
 class ADMMResult:
     """Outcome of :meth:`ADMMSolver.solve`.
 
@@ -292,6 +292,14 @@ class ADMMResult:
             f"{text}, applied loads = {self._vector_text(self.applied_load)}, supports = "
             f"{self._vector_text(supports)} (the three balance to "
             f"{self.kkt.force_balance:.1e} × max(|contact|, |loads|))"
+        )
+
+    def __repr__(self) -> str:
+        """One line: the verdict and the numbers (``summary()`` has the rest)."""
+        return (
+            f"ADMMResult(status={self.status!r}, converged={self.converged}, "
+            f"iterations={self.iterations}, penalty={self.penalty:.6g}, "
+            f"kkt_max={self.kkt.max():.2e}, num_active={self.num_active})"
         )
 
     def summary(self) -> str:
