@@ -21,8 +21,8 @@ from __future__ import annotations
 from admm_dolfinx import _bootstrap  # noqa: F401  (must precede dolfinx/petsc4py)
 from admm_dolfinx.adapt import AdaptiveLimitError, AdaptiveResult, solve_adaptive
 from admm_dolfinx.admm import ADMMConvergenceError, ADMMResult, ADMMSettings, ADMMSolver
-from admm_dolfinx.penalty import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.io.paraview import ContactWriter
+from admm_dolfinx.penalty import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.problem import Ball, ContactProblem, Obstacle, Plane
 from admm_dolfinx.problem.kkt import KKTResiduals
 from admm_dolfinx.problem.material import LinearElastic
