@@ -23,3 +23,56 @@ def test_printing_a_result_is_one_line():
     assert "\n" not in text and len(text) < 200
     assert "status='converged'" in text and f"iterations={result.iterations}" in text
     assert str(result) == text
+
+
+class _Terminal:
+    """A stand-in for a terminal's stderr."""
+
+    def __init__(self):
+        self.lines = []
+
+    def isatty(self):
+        return True
+
+    def write(self, text):
+        self.lines.append(text)
+
+    def flush(self):
+        pass
+
+
+def _progress_lines(monkeypatch, configure):
+    import logging
+    import sys
+
+    import admm_dolfinx.admm.solver as solver_module
+
+    terminal = _Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    monkeypatch.setattr(solver_module, "PROGRESS_SECONDS", 0.0)
+    root, package = logging.getLogger(), logging.getLogger("admm_dolfinx")
+    monkeypatch.setattr(root, "handlers", [])  # a plain script: nothing configured
+    monkeypatch.setattr(package, "level", logging.NOTSET)
+    configure(monkeypatch)
+    with ADMMSolver(example1(h=1 / 8).problem()) as solver:
+        result = solver.solve()
+    return [t for t in terminal.lines if t.startswith("ADMM ")], result
+
+
+def test_a_long_solve_shows_progress_in_a_terminal_without_logging_set_up(monkeypatch):
+    from mpi4py import MPI
+
+    lines, result = _progress_lines(monkeypatch, lambda m: None)
+    assert len(lines) == (result.iterations if MPI.COMM_WORLD.rank == 0 else 0)
+
+
+def test_the_progress_lines_can_be_turned_off(monkeypatch):
+    import logging
+
+    off = [
+        lambda m: m.setenv("ADMM_DOLFINX_PROGRESS", "0"),
+        lambda m: m.setattr(logging.getLogger("admm_dolfinx"), "level", logging.WARNING),
+    ]
+    for configure in off:
+        lines, _ = _progress_lines(monkeypatch, configure)
+        assert lines == []

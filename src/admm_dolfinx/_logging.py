@@ -11,6 +11,8 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import logging
+import os
+import sys
 import warnings
 from collections.abc import Iterator
 
@@ -72,3 +74,29 @@ def warn(message: str, category: type[Warning] = ContactWarning) -> None:
     """Issue ``warnings.warn(message)`` on rank 0 of the communicator at work only."""
     if _speaks():
         warnings.warn(message, category, stacklevel=3)
+
+
+#: ``ADMM_DOLFINX_PROGRESS=0`` turns off the progress lines of a long solve.
+PROGRESS_VARIABLE = "ADMM_DOLFINX_PROGRESS"
+
+
+def progress(logger: logging.Logger, message: str, *args: object) -> None:
+    """A progress line of a long solve: logged at INFO, or shown in a terminal.
+
+    Where the user has configured logging (a handler on the root logger, or a level on
+    the package's logger), the line is an INFO record like any other. Where nothing
+    is configured (a plain script), INFO records go nowhere; the line is then printed
+    on stderr if it is a terminal, on rank 0 of the communicator at work, so that a
+    long solve is not silent. ``ADMM_DOLFINX_PROGRESS=0``, or any level set on the
+    ``admm_dolfinx`` logger, turns that off.
+    """
+    if logger.isEnabledFor(logging.INFO):
+        logger.info(message, *args)
+        return
+    package = logging.getLogger("admm_dolfinx")
+    configured = package.level != logging.NOTSET or bool(logging.getLogger().handlers)
+    if configured or os.environ.get(PROGRESS_VARIABLE, "1") == "0" or not _speaks():
+        return
+    stream = sys.stderr
+    if stream is not None and stream.isatty():
+        print(message % args, file=stream, flush=True)

@@ -76,7 +76,7 @@ from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx._logging import get_logger, speaking_for
+from admm_dolfinx._logging import get_logger, progress, speaking_for
 from admm_dolfinx._mpi import agree, collective_call
 from admm_dolfinx._threads import share_cores
 from admm_dolfinx.admm.anderson import AndersonMixer, weighted_norm
@@ -126,7 +126,8 @@ _REJECTED, _PLAIN, _ANDERSON, _POLISHED = -1, 0, 1, 2
 _NOTES = {_PLAIN: "", _ANDERSON: " (Anderson)", _POLISHED: " (polished)"}
 #: A solve that needs this many iterations or more says so in ``result.warning``.
 SLOW_ITERATIONS = 300
-#: Seconds between the progress lines of a long solve (logged at INFO; every
+#: Seconds between the progress lines of a long solve (logged at INFO, or shown in a
+#: terminal where logging is not set up: :func:`admm_dolfinx._logging.progress`; every
 #: iteration is logged at DEBUG).
 PROGRESS_SECONDS = 10.0
 #: The settings :meth:`ADMMSolver.update_settings` may change between solves: they
@@ -678,8 +679,7 @@ class ADMMSolver:
         level = logging.INFO if now >= self._next_progress else logging.DEBUG
         if level == logging.INFO:
             self._next_progress = now + PROGRESS_SECONDS
-        logger.log(
-            level,
+        line = (
             "ADMM %4d: fpr %.2e feas %.2e comp %.2e eq %.2e bal %.2e du %.2e dp %.2e active %d%s",
             k,
             *(residuals[key] for key in ("fpr", "feasibility", "complementarity")),
@@ -690,6 +690,10 @@ class ADMMSolver:
             residuals["active"],
             " (proposal rejected)" if what == _REJECTED else _NOTES[what],
         )
+        if level == logging.INFO:
+            progress(logger, *line)  # a terminal sees it even with logging unset
+        else:
+            logger.debug(*line)
 
     def _test_met(self, residuals: dict) -> bool:
         s = self.settings
