@@ -45,6 +45,7 @@ test-serial: venv
 test-mpi: venv
 	$(MPIEXEC) -n 2 $(PY) -m mpi4py $(PYTEST)
 	$(MPIEXEC) -n 3 $(PY) -m mpi4py $(PYTEST) tests/test_parallel.py tests/test_mpi.py tests/test_threads.py tests/reliability \
+		tests/adapt/test_adapt_partitions.py \
 		--ignore=tests/reliability/test_large_2d.py
 	$(MPIEXEC) -n 4 $(PY) -m mpi4py $(PYTEST) tests/test_mpi.py tests/reliability/test_user_code.py \
 		tests/reliability/test_wrong_answers.py tests/reliability/test_partitions.py \

@@ -20,6 +20,7 @@
 # bottom face.
 #
 # Run `python demos/adaptive_part.py` or `mpirun -n 2 python demos/adaptive_part.py`.
+# Output: the table of the levels in `out_adaptive_part/levels.txt`.
 
 # +
 from __future__ import annotations
@@ -30,6 +31,7 @@ import admm_dolfinx  # first: it loads the PyPI wheel's MPI and PETSc before dol
 # isort: on
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 import ufl
@@ -37,11 +39,13 @@ from dolfinx import fem
 from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
+from admm_dolfinx.io.output import output_folder
 from admm_dolfinx.problem.material import LinearElastic
 
 parser = argparse.ArgumentParser(description="A part refined to a target error")
 parser.add_argument("--h", type=float, default=0.25, help="the first mesh's size")
 parser.add_argument("--target", type=float, default=0.01, help="relative error of p_max")
+parser.add_argument("--out", default="out_adaptive_part", help="output folder")
 # In the book this runs in a Jupyter kernel, whose own arguments are not the demo's.
 args = parser.parse_args([] if "ipykernel" in sys.modules else None)
 comm = MPI.COMM_WORLD
@@ -146,6 +150,10 @@ adaptive = admm_dolfinx.solve_adaptive(
 )
 say(adaptive.summary())
 result = adaptive.result
+with output_folder(comm, Path(args.out)) as staging:
+    if comm.rank == 0:
+        (Path(staging) / "levels.txt").write_text(adaptive.summary() + "\n")
+say(f"wrote {args.out}/levels.txt")
 say(result.warning or "the last level's contact zone is resolved")
 # -
 

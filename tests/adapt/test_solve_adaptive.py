@@ -78,6 +78,7 @@ def test_3d_hertz_sphere_reaches_its_target_with_an_honest_estimate():
         scene.facet_tags,
         target=0.01,
         surface=scene.surface,
+        max_levels=10,
     )
     true = _true_error(adaptive, scene.info["p0"])
     assert adaptive.converged and adaptive.estimated_error <= 0.01
@@ -194,4 +195,5 @@ def test_flat_punch_is_not_called_done_while_its_force_is_off():
     force = np.linalg.norm(adaptive.result.contact_force)
     assert abs(force / scene.info["force"] - 1.0) > 0.01  # it is indeed not there
     assert not adaptive.converged
+    assert all(level.estimate is None for level in adaptive.history)
     assert adaptive.history[-1].active > 1  # the fallback found the zone

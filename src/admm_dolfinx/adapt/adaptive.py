@@ -33,14 +33,21 @@ from mpi4py import MPI
 
 from admm_dolfinx._logging import get_logger, speaking_for
 from admm_dolfinx._mpi import collective_call
-from admm_dolfinx.adapt.estimator import Surface, edge_indicators
-from admm_dolfinx.adapt.marking import contact_zone_edges, doerfler_edges, graded_edges
+from admm_dolfinx.adapt.estimator import edge_indicators
+from admm_dolfinx.adapt.marking import (
+    contact_zone_edges,
+    count_edges,
+    doerfler_edges,
+    graded_edges,
+)
 from admm_dolfinx.adapt.quantities import QUANTITIES, level_estimate, quantity_value
+from admm_dolfinx.adapt.recovery import NEIGHBOURS
 from admm_dolfinx.adapt.refinement import (
     check_refinable,
     refine_contact_mesh,
     transfer_solution,
 )
+from admm_dolfinx.adapt.surface import Surface
 from admm_dolfinx.admm.result import ADMMResult, WarmStart
 from admm_dolfinx.admm.solver import ADMMSolver
 from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -243,7 +250,8 @@ def _build(
     facet_tags: MeshTags,
 ) -> ContactProblem:
     problem = collective_call(msh.comm, lambda: build(msh, facet_tags), "build(mesh, facet_tags)")
-    if not isinstance(problem, ContactProblem) or problem.mesh is not msh:
+    ok = isinstance(problem, ContactProblem) and problem.mesh is msh
+    if not msh.comm.allreduce(bool(ok), op=MPI.LAND):  # refused on every rank
         raise ValueError(
             "build(mesh, facet_tags) must return a ContactProblem on the mesh it is given "
             f"(its forms on a function space of that mesh); got {type(problem).__name__}."
@@ -278,8 +286,11 @@ def _adapt(
             result = solver.solve(warm_start=warm)
         values.append(quantity_value(quantity, result))
         zone = result.resolution
-        # a zone of one node (or a few, in 3D) is not resolved whatever its shape
+        # a zone of one node (or a few, in 3D) is not resolved whatever its shape; the
+        # recovered peak counts only where it is a fit (not the nodal maximum)
         few = 1 if problem.gdim == 2 else 3
+        if quantity == "max_pressure":
+            few = max(few, NEIGHBOURS[problem.gdim] - 1)
         resolved.append(bool(zone is not None and zone.resolved and result.num_active > few))
         estimate = level_estimate(values, resolved)
         done = estimate is not None and estimate <= target
@@ -310,7 +321,7 @@ def _adapt(
             iterations=result.iterations,
             cpu_seconds=0.0,
             wall_seconds=0.0,
-            marked=int(comm.allreduce(marked.size, op=MPI.SUM)),
+            marked=count_edges(msh, marked),
         )
         if not done and level < max_levels:
             msh, facet_tags = refine_contact_mesh(

@@ -27,8 +27,6 @@ estimated from successive levels (:mod:`admm_dolfinx.adapt.quantities`).
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 import numpy.typing as npt
 import ufl
@@ -36,6 +34,7 @@ from dolfinx import fem, mesh
 from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
+from admm_dolfinx.adapt.surface import Surface, project_on_surface
 from admm_dolfinx.admm.result import ADMMResult
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_set import evaluate_obstacle, marked_facets
@@ -46,9 +45,6 @@ __all__ = ["BUBBLE_STIFFNESS", "EdgeIndicators", "edge_indicators"]
 #: function: 4 in 1D (∫ψ'² = 16/(3h), ∫ψ = 2h/3, against 2/h² for the hat), the scale
 #: the indicator needs (its constant cancels in the marking).
 BUBBLE_STIFFNESS = 4.0
-
-#: A map x (k, gdim) -> the nearest points of the body's true surface (k, gdim).
-Surface = Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
 
 
 class EdgeIndicators:
@@ -270,8 +266,8 @@ def _contact_midpoints(problem, result, edges, vertices, node, energy, surface) 
     u = result.u.x.array.reshape(-1, problem.V.dofmap.index_map_bs)[:, :gdim]
     ends = vertices[on_contact]
     midpoint = 0.5 * (coordinates[ends[:, 0]] + coordinates[ends[:, 1]])
-    if surface is not None and midpoint.size:
-        midpoint = np.asarray(surface(midpoint), dtype=np.float64)[:, :gdim]
+    if surface is not None:  # on every rank: the call is collective
+        midpoint = project_on_surface(problem.comm, surface, np.ascontiguousarray(midpoint))
     deformed = midpoint + 0.5 * (u[node[ends[:, 0]]] + u[node[ends[:, 1]]])
     gap, directions = evaluate_obstacle(
         problem.obstacle, deformed, np.zeros_like(deformed), problem.comm, "obstacle"

@@ -16,14 +16,15 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from dolfinx import fem, mesh
+from dolfinx import fem, la, mesh
 from mpi4py import MPI
 
 from admm_dolfinx.adapt.estimator import EdgeIndicators
+from admm_dolfinx.adapt.shared_vertices import agreed_vertex_flags
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_set import marked_facets
 
-__all__ = ["SIGNIFICANT", "contact_zone_edges", "doerfler_edges"]
+__all__ = ["SIGNIFICANT", "contact_zone_edges", "count_edges", "doerfler_edges", "graded_edges"]
 
 #: Significant digits the indicators keep before the threshold is sought.
 SIGNIFICANT = 8
@@ -63,11 +64,10 @@ def doerfler_edges(
         lo, hi = (mid, hi) if carried >= theta * total else (lo, mid)
         if hi - lo <= 1e-12 * top:
             break
-    # the threshold is an indicator's own value: the largest one not above lo
-    candidates = eta[(eta > 0.0) & (eta <= lo)]
-    threshold = float(comm.allreduce(float(candidates.max(initial=0.0)), op=MPI.MAX))
-    if threshold <= 0.0:
-        threshold = lo
+    # the threshold is an indicator's own value: the smallest one not below lo (the
+    # set {η ≥ lo} carries θ of the total; no larger threshold does)
+    candidates = eta[eta >= lo]
+    threshold = float(comm.allreduce(float(candidates.min(initial=np.inf)), op=MPI.MIN))
     return np.flatnonzero(eta >= threshold).astype(np.int32)
 
 
@@ -105,14 +105,12 @@ def contact_zone_edges(
     facets = marked_facets(problem.facet_tags, problem.contact_marker)
     msh.topology.create_connectivity(fdim, 0)
     f2v = msh.topology.connectivity(fdim, 0)
-    per_facet = int(f2v.offsets[1] - f2v.offsets[0]) if f2v.offsets.size > 1 else 0
-    if not facets.size or not per_facet:
-        return np.zeros(0, dtype=np.int32)
+    per_facet = msh.topology.dim  # a simplex's facet has tdim vertices (any rank, empty too)
     facet_vertices = f2v.array.reshape(-1, per_facet)[facets]
     touching = facets[np.any(vertex_active[facet_vertices], axis=1)]
-    # and one ring further along Γ_C: facets sharing a vertex with those
-    ring_vertices = np.zeros_like(vertex_active)
-    ring_vertices[f2v.array.reshape(-1, per_facet)[touching].ravel()] = True
+    # and one ring further along Γ_C: the vertices of those facets, agreed on by every
+    # rank that holds them (a rank may hold one through a cell without the facet)
+    ring_vertices = agreed_vertex_flags(msh, f2v.array.reshape(-1, per_facet)[touching].ravel())
     # every edge of the cells that touch the zone: the cells are split whole, so that the
     # zone's elements stay shaped as they were (splitting Γ_C's edges alone would
     # leave slivers under it)
@@ -190,3 +188,19 @@ def graded_edges(
     msh.topology.create_connectivity(tdim, 1)
     c2e = msh.topology.connectivity(tdim, 1)
     return np.unique(c2e.array.reshape(cells.size, -1)[coarse]).astype(np.int32)
+
+
+def count_edges(msh: mesh.Mesh, edges: npt.NDArray[np.int32]) -> int:
+    """How many distinct edges of the whole mesh ``edges`` (local indices) marks; collective.
+
+    An edge marked on several ranks (shared, or a ghost) counts once: the marks are
+    summed onto each edge's owner, which counts it.
+    """
+    msh.topology.create_entities(1)
+    index_map = msh.topology.index_map(1)
+    marks = la.vector(index_map, 1)
+    marks.array[:] = 0.0
+    marks.array[np.asarray(edges, dtype=np.int64)] = 1.0
+    marks.scatter_reverse(la.InsertMode.add)
+    owned = int(np.count_nonzero(marks.array[: index_map.size_local] > 0.0))
+    return int(msh.comm.allreduce(owned, op=MPI.SUM))

@@ -65,11 +65,14 @@ def level_estimate(values: Sequence[float], resolved: Sequence[bool]) -> float |
         resolved: Whether each level's contact zone was resolved.
 
     Returns:
-        e_k / abs(Q_k), or None (fewer than three resolved levels at the end, or Q_k = 0).
+        e_k / abs(Q_k), or None (fewer than three resolved levels at the end, Q_k = 0, or
+        the last three values equal: a quantity that does not move is not converging).
     """
     if len(values) < 3 or not all(resolved[-3:]) or values[-1] == 0.0:
         return None
     last, before = abs(values[-1] - values[-2]), abs(values[-2] - values[-3])
+    if last == 0.0 and before == 0.0:  # a quantity that does not move says nothing
+        return None
     order = ORDER_RANGE[1]
     if before > 0.0 and last > 0.0:
         order = min(max(math.log2(before / last), ORDER_RANGE[0]), ORDER_RANGE[1])

@@ -15,8 +15,10 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 from dolfinx import fem, mesh
+from mpi4py import MPI
 
-from admm_dolfinx.adapt.estimator import Surface
+from admm_dolfinx.adapt.shared_vertices import agreed_geometry_flags
+from admm_dolfinx.adapt.surface import Surface, project_on_surface
 from admm_dolfinx.admm.result import ADMMResult, WarmStart
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_set import Marker, marked_facets
@@ -77,19 +79,23 @@ def refine_contact_mesh(
     fine.topology.create_connectivity(fdim, fine.topology.dim)
     tags = _transfer_facet_tags(facet_tags, msh, fine, parent_cell, parent_facet)
     if surface is not None:
-        fine.topology.create_connectivity(fdim, fine.topology.dim)
-        facets = marked_facets(tags, contact_marker)
-        nodes = np.unique(mesh.entities_to_geometry(fine, fdim, facets).ravel())
-        gdim = fine.geometry.dim
-        if nodes.size:
-            moved = np.asarray(surface(fine.geometry.x[nodes, :gdim]), dtype=np.float64)
-            if moved.shape != (nodes.size, gdim) or not np.all(np.isfinite(moved)):
-                raise ValueError(
-                    "`surface` must map points of shape (k, gdim) to finite points of the "
-                    f"same shape; got shape {moved.shape} for {nodes.size} points."
-                )
-            fine.geometry.x[nodes, :gdim] = moved
+        _place_on_surface(fine, marked_facets(tags, contact_marker), surface)
     return fine, tags
+
+
+def _place_on_surface(fine: mesh.Mesh, facets: npt.NDArray[np.int32], surface: Surface) -> None:
+    """Move the vertices of ``facets`` onto ``surface``, every copy of a vertex alike."""
+    fdim = fine.topology.dim - 1
+    local = (
+        mesh.entities_to_geometry(fine, fdim, facets).ravel()
+        if facets.size
+        else np.zeros(0, dtype=np.int64)
+    )
+    # a rank may hold a vertex of Γ_C through a cell that does not hold the facet
+    nodes = np.flatnonzero(agreed_geometry_flags(fine, local))
+    gdim = fine.geometry.dim
+    moved = project_on_surface(fine.comm, surface, fine.geometry.x[nodes, :gdim])
+    fine.geometry.x[nodes, :gdim] = moved
 
 
 def _transfer_facet_tags(
@@ -140,11 +146,23 @@ def _transfer_facet_tags(
     )
 
 
+#: The interpolation's padding, as a share of the coarse mesh's smallest cell.
+PADDING_SHARE = 0.1
+
+
+def _smallest_cell(msh: mesh.Mesh) -> float:
+    """The smallest cell diameter of the whole mesh; collective."""
+    tdim = msh.topology.dim
+    n = msh.topology.index_map(tdim).size_local
+    local = float(np.min(msh.h(tdim, np.arange(n, dtype=np.int32)))) if n else np.inf
+    return float(msh.comm.allreduce(local, op=MPI.MIN))
+
+
 def transfer_solution(result: ADMMResult, problem: ContactProblem) -> WarmStart:
     """A coarse solution interpolated onto a finer problem, to start its solve; collective.
 
-    Points of the fine mesh that the coarse one does not cover (vertices moved onto a
-    convex true surface) get zero.
+    Points of the fine mesh just outside the coarse one (vertices moved onto a convex
+    true surface) take the values of their nearest coarse cell.
 
     Args:
         result: The coarse solution.
@@ -157,12 +175,16 @@ def transfer_solution(result: ADMMResult, problem: ContactProblem) -> WarmStart:
     tdim = fine.topology.dim
     cell_map = fine.topology.index_map(tdim)
     cells = np.arange(cell_map.size_local + cell_map.num_ghosts, dtype=np.int32)
+    # vertices moved onto a convex true surface lie outside the coarse mesh, by the
+    # sagitta of its facets (h²/8R): a padding of a fraction of the smallest coarse
+    # cell finds them their nearest coarse cell instead of leaving them at zero
+    padding = PADDING_SHARE * _smallest_cell(result.u.function_space.mesh)
     u = fem.Function(problem.V)
-    data = fem.create_interpolation_data(problem.V, result.u.function_space, cells, padding=1e-8)
+    data = fem.create_interpolation_data(problem.V, result.u.function_space, cells, padding=padding)
     u.interpolate_nonmatching(result.u, cells, data)
     pressure = fem.Function(problem.contact.Q)
     data = fem.create_interpolation_data(
-        problem.contact.Q, result.pressure.function_space, cells, padding=1e-8
+        problem.contact.Q, result.pressure.function_space, cells, padding=padding
     )
     pressure.interpolate_nonmatching(result.pressure, cells, data)
     multiplier = np.maximum(pressure.x.array[problem.contact.dofs], 0.0)
