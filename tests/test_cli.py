@@ -305,3 +305,13 @@ def test_a_long_solve_reports_progress(package_log, monkeypatch):
         m for m in _messages(package_log, logging.INFO) if m.startswith("ADMM ") and "fpr" in m
     ]
     assert len(lines) == (result.iterations if MPI.COMM_WORLD.rank == 0 else 0)
+
+
+def test_run_help_describes_every_scene(capsys):
+    from admm_dolfinx.scenes.library import SCENES
+
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    for name in SCENES:
+        assert f"{name} (" in out, name

@@ -163,9 +163,10 @@ def build_parser() -> argparse.ArgumentParser:
         "run",
         parents=[verbose],
         help="solve one scene and print the result summary",
-        description="Solve one of the paper's scenes: example1 (rectangle "
+        description="Solve one of the package's scenes: example1 (rectangle "
         "on a foundation), example2 (Hertz quarter cylinder), example3 "
-        "(block on a half-ball).",
+        "(block on a half-ball), the paper's; hertz (a quarter cylinder on a plane) "
+        "and hertz_sphere (a quarter sphere on a plane), Hertz's.",
     )
     run.add_argument("scene", choices=sorted(SCENES))
     run.add_argument("--h", type=float, default=None, help="example1: mesh size (1/32)")
