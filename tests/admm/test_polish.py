@@ -270,3 +270,66 @@ def test_polish_with_prescribed_tangential_displacement_on_a_curved_contact_boun
     assert result.kkt.max() <= 1e-10
     assert rel_diff(_global(problem, result.u.x.array), _global(problem, tight.u.x.array)) <= 1e-9
     assert rel_diff(_global(problem, result.multiplier), _global(problem, tight.multiplier)) <= 1e-8
+
+
+def _no_condensed_rule(monkeypatch):
+    """Γ_C past the condensed rule, whatever its size: S_C is never computed unasked."""
+    import admm_dolfinx.linalg.condensed as condensed
+
+    monkeypatch.setattr(condensed, "DENSE_COST_RATIO", 0.0)
+
+
+def test_a_floating_3d_body_past_the_condensed_rule_polishes_from_the_step1_factors(
+    monkeypatch,
+):
+    """One process: T is read off step 1's factors (inverse entries), exactly.
+
+    Compared with the same body polished from S_C and with a tight unpolished solve.
+    Under MPI (PETSc reads inverse entries on one process) the default does not
+    polish there, and still meets the tolerance.
+    """
+    problem = hertz_sphere(level=0).problem()
+    with ADMMSolver(problem) as solver:
+        assert solver.plan.polish == "dense"
+        dense = solver.solve()
+    with ADMMSolver(problem, polish=False, rtol=1e-11, max_iter=3000) as solver:
+        tight = solver.solve()
+    _no_condensed_rule(monkeypatch)
+    with ADMMSolver(problem) as solver:
+        plan = solver.plan
+        result = solver.solve()
+    u, lam = _global(problem, result.u.x.array), _global(problem, result.multiplier)
+    if problem.comm.size > 1:
+        assert plan.polish == "none" and result.converged
+        assert rel_diff(u, _global(problem, tight.u.x.array)) <= 1e-5
+        return
+    assert plan.polish == "inverse" and plan.step1 == "factorised" and plan.metric == "mass"
+    assert result.polish.kind == "inverse"
+    assert result.polish.polished_at == result.iterations < tight.iterations
+    assert result.kkt.max() <= 1e-10
+    assert rel_diff(u, _global(problem, dense.u.x.array)) <= 1e-9
+    assert rel_diff(lam, _global(problem, dense.multiplier)) <= 1e-8
+    assert rel_diff(u, _global(problem, tight.u.x.array)) <= 1e-8
+
+
+def test_a_floating_3d_body_keeps_its_factorisation_for_polishing(monkeypatch):
+    """Past FACTOR_FLOPS_LIMIT a held body takes multigrid; a floating one that would
+    polish from its factors keeps them up to FLOATING_FACTOR_FLOPS_LIMIT (one process)."""
+    import admm_dolfinx.admm.plan as plan_module
+
+    _no_condensed_rule(monkeypatch)
+    monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", 1.0)
+    held = example3(level=0).problem()
+    with ADMMSolver(held) as solver:
+        assert solver.plan.step1 == "iterative"
+    floating = hertz_sphere(level=0).problem()
+    with ADMMSolver(floating) as solver:
+        plan = solver.plan
+    if floating.comm.size > 1:
+        assert plan.step1 == "iterative" and plan.polish == "none"
+    else:
+        assert plan.step1 == "factorised" and plan.polish == "inverse"
+        assert "floating body" in plan.describe()
+    monkeypatch.setattr(plan_module, "FLOATING_FACTOR_FLOPS_LIMIT", 1.0)
+    with ADMMSolver(floating) as solver:
+        assert solver.plan.step1 == "iterative"

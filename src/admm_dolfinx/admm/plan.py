@@ -17,8 +17,11 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
 * r*: dense (from the condensed factorisation), local (no factorisation of the body)
   or factorised, unless the penalty is given, and its eigenvalue tolerance (looser in
   the surface metric, which uses λ_min and λ_max roughly);
-* polishing: dense (the compliance of Γ_C, where S_C is at hand), sparse (2D,
-  factorisations of the body), or none;
+* polishing: dense (the compliance of Γ_C, where S_C is at hand), inverse (the same
+  compliance read off step 1's own factors by MUMPS's selected inverse entries: a 3D
+  body that the contact alone holds, one process, Γ_C past the condensed rule but
+  within :data:`INVERSE_MAX_CONTACT_NODES` and :data:`INVERSE_MEMORY_FRACTION`),
+  sparse (2D, factorisations of the body), or none;
 * the penalty metric: the paper's r M, or the surface metric r(M + βL_Γ) (3D).
 """
 
@@ -26,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 from mpi4py import MPI
 
 from admm_dolfinx.admm.settings import ADMMSettings
@@ -36,7 +40,15 @@ from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL
 from admm_dolfinx.penalty.surface import SURFACE_PENALTY_TOL
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["FACTOR_FLOPS_LIMIT", "MEMORY_FRACTION", "SolverPlan", "make_plan"]
+__all__ = [
+    "FACTOR_FLOPS_LIMIT",
+    "FLOATING_FACTOR_FLOPS_LIMIT",
+    "INVERSE_MAX_CONTACT_NODES",
+    "INVERSE_MEMORY_FRACTION",
+    "MEMORY_FRACTION",
+    "SolverPlan",
+    "make_plan",
+]
 
 #: In 3D, a factorisation estimated to need more than this fraction of the memory
 #: available is not attempted: step 1 uses multigrid.
@@ -45,6 +57,18 @@ MEMORY_FRACTION = 0.5
 #: slower than the multigrid path on the whole solve (the crossover of
 #: ``python benchmarks/scale_3d.py``).
 FACTOR_FLOPS_LIMIT = 1e11
+#: A floating 3D body that would polish from its step-1 factors (``polish="inverse"``)
+#: keeps the factorisation up to this many operations: unpolished, its ADMM builds the
+#: contact zone a few nodes per iteration (``python benchmarks/polish_3d.py --scene
+#: hertz_sphere`` measures both at level 3).
+FLOATING_FACTOR_FLOPS_LIMIT = 1e12
+#: Polishing from step 1's factors (``polish="inverse"``) holds the c × c block of
+#: (A + rK)⁻¹ (c ≤ 3m dofs of Γ_C) and its pattern, about 24 c² bytes: at most this
+#: fraction of the memory available...
+INVERSE_MEMORY_FRACTION = 0.25
+#: ...and solves m × m dense systems per active-set round: at most this many contact
+#: nodes.
+INVERSE_MAX_CONTACT_NODES = 5000
 
 
 @dataclass(frozen=True)
@@ -56,7 +80,8 @@ class SolverPlan:
         penalty: How r is found: ``"given"``, ``"dense"``, ``"local"``, ``"factorised"``.
         penalty_tol: The eigenvalue tolerance of the iterative r* methods (None with
             a given penalty).
-        polish: ``"dense"``, ``"sparse"`` or ``"none"``.
+        polish: ``"dense"`` (from S_C), ``"inverse"`` (from step 1's factors),
+            ``"sparse"`` or ``"none"``.
         metric: ``"mass"`` or ``"surface"``.
         private_schur: A condensed factorisation is made for r* and polishing only
             (freed once S_C is read): step 1 factorises A + rK.
@@ -129,6 +154,17 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     if schur and may_polish:
         polish = "dense"
         reasons.append("the dense Schur complement onto Γ_C is cheap here")
+    elif (
+        may_polish
+        and (auto or settings.polish)
+        and gdim == 3
+        and _inverse_applies(problem, options, serial, condensed)
+    ):
+        polish = "inverse"
+        reasons.append(
+            "a floating body, Γ_C too large for the condensed factorisation: T from the "
+            "step-1 factors' inverse entries"
+        )
     elif may_polish and (auto or settings.polish) and gdim == 2 and factor:
         polish = "sparse"
         reasons.append("Γ_C too large for dense polishing: sparse factorisations")
@@ -199,6 +235,32 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     )
 
 
+def _polishes_from_factors(problem: ContactProblem, settings: ADMMSettings) -> bool:
+    """Whether a factorised step 1 would polish from its factors (``"inverse"``)."""
+    return (
+        settings.penalty == "auto"
+        and settings.polish is not False
+        and settings.penalty_metric != "surface"
+        and settings.condensed is not True
+        and problem.gdim == 3
+        and _inverse_applies(problem, {}, problem.comm.size == 1, False)
+    )
+
+
+def _inverse_applies(problem: ContactProblem, options: dict, serial: bool, condensed: bool):
+    """Whether T can be read off a factorised step 1 (see ``INVERSE_*``); collective."""
+    if not (serial and is_factorisation(options) and not condensed):
+        return False
+    if not problem.rigid_motions.floating:
+        return False
+    m = problem.contact.num_global
+    if m > INVERSE_MAX_CONTACT_NODES:
+        return False
+    c = problem.comm.allreduce(int(np.count_nonzero(problem.contact.free_normals)))
+    memory = available_memory() or float("inf")
+    return 24.0 * float(c) ** 2 <= INVERSE_MEMORY_FRACTION * memory
+
+
 def _inner_rtol(settings: ADMMSettings, options: dict) -> str | float:
     if "ksp_rtol" in options:
         return float(options["ksp_rtol"])
@@ -229,6 +291,12 @@ def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: d
     if settings.mode == "paper":
         # the paper's Algorithm 2 factorises step 1 once: kept wherever it fits
         return False, f"MUMPS factorisation, as the paper's algorithm ({need})"
+    if estimate.flops > FACTOR_FLOPS_LIMIT and _polishes_from_factors(problem, settings):
+        if estimate.flops <= FLOATING_FACTOR_FLOPS_LIMIT:
+            return False, (
+                f"MUMPS factorisation ({need}): a floating body, whose polishing reads "
+                "the step-1 factors"
+            )
     if estimate.flops > FACTOR_FLOPS_LIMIT:
         return True, (
             f"a factorisation would need {need} (> {FACTOR_FLOPS_LIMIT:.0e} flops, where "

@@ -52,6 +52,8 @@ import numpy.typing as npt
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import RankLayout, from_rank0
 from admm_dolfinx.admm.active_set import ActiveSetWalk
+from admm_dolfinx.linalg.condensed import ContactSupport
+from admm_dolfinx.linalg.mumps_schur import inverse_block
 from admm_dolfinx.penalty.dense import compliance_matrix
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
@@ -106,6 +108,9 @@ class ActiveSetPolish:
         self._walk: ActiveSetWalk[tuple] = ActiveSetWalk(lambda active: active.tobytes())
         self.attempts = self.rounds = self.skipped = 0
         self.time = 0.0
+        # with from_factors: step 1's operator, whose factors give T, and C's dofs
+        self._factors = None
+        self._dofs: npt.NDArray[np.integer] | None = None
 
     def destroy(self) -> None:
         """Nothing to free (the dense arrays are NumPy's)."""
@@ -119,6 +124,30 @@ class ActiveSetPolish:
         The arrays outlive the operator.
         """
         return cls(problem, operator.schur, operator.k_cc, operator.support.weights, rounds)
+
+    @classmethod
+    def from_factors(
+        cls, problem: ContactProblem, operator, rounds: int = MAX_ROUNDS
+    ) -> ActiveSetPolish:
+        """From the MUMPS factors of step 1's A + rK (a factorised step 1, one process).
+
+        T = Wᵀ [(A + rK)⁻¹]_CC W is read off the factors that step 1 already has, by
+        MUMPS's selected entries of the inverse
+        (:func:`~admm_dolfinx.linalg.mumps_schur.inverse_block`), at every penalty
+        that step 1 is factorised at: no Schur complement is computed.
+
+        Args:
+            problem: The contact problem.
+            operator: Step 1's :class:`~admm_dolfinx.linalg.operators.PenalisedOperator`
+                (its :meth:`set_penalty` is called before this polisher's).
+            rounds: Primal-dual active-set corrections per guess.
+        """
+        if problem.comm.size != 1:
+            raise ValueError("polishing from the step-1 factors needs one process.")
+        support = ContactSupport.build(problem)
+        polish = cls(problem, None, None, support.weights, rounds)
+        polish._factors, polish._dofs = operator, support.dofs
+        return polish
 
     def set_penalty(self, r: float) -> None:
         """Use the penalty r of the step-1 solves: T and I − rT on rank 0; collective.
@@ -134,8 +163,7 @@ class ActiveSetPolish:
         self._compliance = self._shifted = None
         if self.comm.rank == 0:
             try:  # never raise on rank 0 alone: the other ranks would wait
-                schur, k_cc, weights = self._dense_data()
-                self._compliance = compliance_matrix(schur, k_cc, weights, r)
+                self._compliance = self._compliance_at(r)
                 self._shifted = np.eye(self._compliance.shape[0]) - r * self._compliance
             except Exception as error:  # polishing is an option: the ADMM goes on without
                 self._compliance = self._shifted = None
@@ -145,6 +173,17 @@ class ActiveSetPolish:
                     error,
                 )
         self.setup_time = from_rank0(self.comm, time.perf_counter() - t0)
+
+    def _compliance_at(self, r: float) -> npt.NDArray[np.float64]:
+        """T at the penalty r (rank 0): from S_C, or from step 1's factors at r."""
+        if self._factors is not None:
+            if self._factors.penalty != r or self._weights is None or self._dofs is None:
+                raise RuntimeError("step 1 is not factorised at this penalty.")
+            factor = self._factors.ksp.getPC().getFactorMatrix()
+            block = inverse_block(factor, self._dofs)
+            return self._weights.T @ block @ self._weights
+        schur, k_cc, weights = self._dense_data()
+        return compliance_matrix(schur, k_cc, weights, r)
 
     def _dense_data(
         self,

@@ -251,6 +251,10 @@ class ADMMSolver:
                 self.polisher = ActiveSetPolish.from_operator(
                     problem, schur_source, rounds=s.polish_rounds
                 )
+            elif plan.polish == "inverse":  # T from step 1's factors, set at each r
+                self.polisher = ActiveSetPolish.from_factors(
+                    problem, self.operator, rounds=s.polish_rounds
+                )
             elif plan.polish == "sparse":
                 self.polisher = SparsePolish(problem, prefixes["polish"], plan.factor_options)
             self._time_schur = private.timings["factorization"] if private else 0.0

@@ -3,7 +3,7 @@
 The functions are resolved with ctypes in the PETSc library that petsc4py itself is
 linked to (``dlsym`` on petsc4py's extension module searches its dependencies), so
 they act on the same objects as petsc4py. Used by :mod:`admm_dolfinx.linalg.condensed`, and
-(selected entries of the inverse) by ``benchmarks/polish_3d.py``.
+(selected entries of the inverse) by :mod:`admm_dolfinx.admm.polish_dense`.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ __all__ = [
     "SchurBlock",
     "factorize_schur",
     "full_symmetric",
+    "inverse_block",
     "selected_inverse_entries",
     "set_schur_indices",
 ]
@@ -110,3 +111,35 @@ def selected_inverse_entries(factor: PETSc.Mat, pattern: PETSc.Mat) -> None:
     _call("MatMumpsGetInverseTranspose", factor.handle, pattern.handle)
     factor.setMumpsIcntl(30, 0)
     factor.setMumpsIcntl(20, 0)
+
+
+def inverse_block(factor: PETSc.Mat, dofs: npt.NDArray[np.integer]) -> npt.NDArray[np.float64]:
+    """The dense block (A⁻¹)_CC, C = ``dofs``, from MUMPS factors of a symmetric A.
+
+    MUMPS's selected entries of the inverse (:func:`selected_inverse_entries`): the
+    factors are reused, no other factorisation is made. One process. Memory: the
+    requested pattern and the dense block, about 24 c² bytes for c = |C|.
+
+    Args:
+        factor: The factor matrix of a MUMPS Cholesky (or LU) factorisation of A.
+        dofs: The global indices of C, sorted.
+
+    Returns:
+        The c × c block, symmetrised (the two triangles agree to round-off).
+    """
+    n = factor.getSize()[0]
+    c = int(dofs.size)
+    counts = np.zeros(n, dtype=PETSc.IntType)
+    counts[dofs] = c
+    indptr = np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType)
+    columns = np.tile(np.asarray(dofs, dtype=PETSc.IntType), c)
+    pattern = PETSc.Mat().createAIJ(
+        (n, n), csr=(indptr, columns, np.zeros(c * c)), comm=PETSc.COMM_SELF
+    )
+    try:
+        selected_inverse_entries(factor, pattern)
+        values = pattern.getValuesCSR()[2]
+        block = values.reshape(c, c)  # rows of C in order, each with C's columns sorted
+    finally:
+        pattern.destroy()
+    return 0.5 * (block + block.T)
