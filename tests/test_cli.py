@@ -315,3 +315,25 @@ def test_run_help_describes_every_scene(capsys):
     out = " ".join(capsys.readouterr().out.split())
     for name in SCENES:
         assert f"{name} (" in out, name
+
+
+@pytest.mark.parametrize(
+    ("argv", "hint"),
+    [
+        (["run", "example2", "--levle", "1"], "--levle: did you mean --level?"),
+        (["run", "example1", "--rtoll=1e-8"], "--rtoll: did you mean --rtol?"),
+        (["reproduce", "table1", "--quik"], "--quik: did you mean --quick?"),
+    ],
+)
+def test_a_mistyped_option_names_the_closest_one(argv, hint, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert hint in capsys.readouterr().err
+
+
+def test_an_unknown_option_far_from_any_gets_no_hint(capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "example1", "--zzzz"])
+    err = capsys.readouterr().err
+    assert "unrecognized arguments: --zzzz" in err and "did you mean" not in err

@@ -6,10 +6,12 @@ Every command works under ``mpirun -n N admm-dolfinx ...``; only rank 0 prints.
 from __future__ import annotations
 
 import argparse
+import difflib
 import logging
 import sys
 import time
 from pathlib import Path
+from typing import NoReturn
 
 from mpi4py import MPI
 
@@ -133,16 +135,45 @@ def _version() -> str:
 _VERBOSE_HELP = "log every ADMM iteration (rank 0); without it `run` logs stages and progress"
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose error for an unknown option names the closest known one."""
+
+    def error(self, message: str) -> NoReturn:
+        if message.startswith("unrecognized arguments:"):
+            known = _option_strings(self)
+            hints = []
+            for token in message.split(":", 1)[1].split():
+                flag = token.split("=", 1)[0]
+                if flag.startswith("-"):
+                    close = difflib.get_close_matches(flag, known, n=1, cutoff=0.6)
+                    if close:
+                        hints.append(f"{flag}: did you mean {close[0]}?")
+            if hints:
+                message = f"{message} ({'; '.join(hints)})"
+        super().error(message)
+
+
+def _option_strings(parser: argparse.ArgumentParser) -> list[str]:
+    """Every option string of ``parser`` and of its subcommands."""
+    found: list[str] = []
+    for action in parser._actions:
+        found.extend(action.option_strings)
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                found.extend(_option_strings(child))
+    return sorted(set(found))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also documents every command in ``--help``)."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="admm-dolfinx",
         description="Frictionless contact of an elastic body with a rigid obstacle, solved "
         "by ADMM with the automatic penalty r* (Koko 2019). Run under mpirun for parallel.",
     )
     # -v is accepted before and after the command: the subcommands share it, and their
     # copy only sets it when given (SUPPRESS), so it never resets the main parser's.
-    verbose = argparse.ArgumentParser(add_help=False)
+    verbose = _Parser(add_help=False)
     verbose.add_argument(
         "-v",
         "--verbose",
