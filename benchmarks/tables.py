@@ -5,11 +5,11 @@ folder on ``sys.path``). Call on rank 0 only.
 
 A full run (no ``--quick``, ``--small`` or ``--only``) also writes the script's page
 of the book, ``docs/benchmarks/<script>.md``: every table it printed, each with the
-command that produced it, the date and the machine, and appends a line to
-``CHANGELOG.md``. Tables that an earlier run of another part of the script wrote stay
-on the page; a table that no part writes any more goes with the page (delete it and
-rerun every part). The pages are never edited by hand. ``ADMM_BENCHMARK_PAGE=0`` turns
-this off (the smoke run of ``make test`` does).
+command that produced it, the date and the machine, and appends a line to the book's
+log of reruns, ``docs/benchmarks/reruns.md``. Tables that an earlier run of another
+part of the script wrote stay on the page; a table that no part writes any more goes
+with the page (delete it and rerun every part). The pages are never edited by hand.
+``ADMM_BENCHMARK_PAGE=0`` turns this off (the smoke run of ``make test`` does).
 """
 
 from __future__ import annotations
@@ -24,6 +24,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from admm_dolfinx.io.output import atomic_file
+
+#: The book's log of full benchmark runs, one line per run, next to the pages.
+RERUNS = "reruns.md"
+RERUNS_HEADER = (
+    "# Benchmark reruns\n\n"
+    "Each full run of a benchmark script that rewrites its page of the book adds a line\n"
+    "here (`benchmarks/tables.py`); the page itself carries the command, date and machine\n"
+    "of each of its tables. Do not edit by hand.\n\n"
+)
 
 
 def markdown_table(rows: Sequence[dict]) -> str:
@@ -131,11 +140,12 @@ def _write_page() -> None:
     PAGES.mkdir(parents=True, exist_ok=True)
     with atomic_file(page) as fh:
         fh.write("\n".join(lines) + "\n")
-    changelog = ROOT / "CHANGELOG.md"
-    if changelog.exists():
-        with changelog.open("a") as fh:
-            tables = ", ".join(written)
-            fh.write(f"- {stamp}: `{command}` wrote {tables} in docs/benchmarks/{script.stem}.md\n")
+    reruns = PAGES / RERUNS
+    if not reruns.exists():
+        reruns.write_text(RERUNS_HEADER)
+    with reruns.open("a") as fh:
+        tables = ", ".join(written)
+        fh.write(f"- {stamp}: `{command}` wrote {tables} in docs/benchmarks/{script.stem}.md\n")
 
 
 def print_and_save(rows: Sequence[dict], path: Path) -> None:

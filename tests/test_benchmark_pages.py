@@ -22,7 +22,6 @@ def tables(tmp_path, monkeypatch):
     monkeypatch.setattr(module, "ROOT", tmp_path)
     monkeypatch.setattr(module, "PAGES", tmp_path / "pages")
     monkeypatch.setattr(module, "_script", lambda: tmp_path / "demo_bench.py")
-    (tmp_path / "CHANGELOG.md").write_text("# Changelog\n")
     for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE"):  # the command as a serial run's
         monkeypatch.delenv(name, raising=False)
     return module
@@ -49,8 +48,10 @@ def test_parts_keep_each_others_tables(tables, monkeypatch, tmp_path):
     assert text.index("## bench rule") < text.index("## bench cal")
     assert "| 1 |" not in text and "| 3 |" in text and "| 2 |" in text
     assert text.count("## bench rule") == 1
-    log = (tmp_path / "CHANGELOG.md").read_text().splitlines()
-    assert len(log) == 4 and log[-1].endswith("wrote bench rule in docs/benchmarks/demo_bench.md")
+    log = (tmp_path / "pages" / "reruns.md").read_text().splitlines()
+    assert log[0] == "# Benchmark reruns"
+    assert sum(line.startswith("- ") for line in log) == 3
+    assert log[-1].endswith("wrote bench rule in docs/benchmarks/demo_bench.md")
 
 
 def test_a_page_of_the_old_layout_keeps_its_provenance(tables, monkeypatch, tmp_path):
