@@ -282,11 +282,11 @@ def _no_condensed_rule(monkeypatch):
 def test_a_floating_3d_body_past_the_condensed_rule_polishes_from_the_step1_factors(
     monkeypatch,
 ):
-    """One process: T is read off step 1's factors (inverse entries), exactly.
+    """T is read off step 1's factors (inverse entries), exactly, on any partition.
 
     Compared with the same body polished from S_C and with a tight unpolished solve.
-    Under MPI (PETSc reads inverse entries on one process) the default does not
-    polish there, and still meets the tolerance.
+    Under MPI the step-1 factorisation takes a centralised right-hand side (MUMPS
+    reads the inverse entries with one).
     """
     problem = hertz_sphere(level=0).problem()
     with ADMMSolver(problem) as solver:
@@ -299,10 +299,8 @@ def test_a_floating_3d_body_past_the_condensed_rule_polishes_from_the_step1_fact
         plan = solver.plan
         result = solver.solve()
     u, lam = _global(problem, result.u.x.array), _global(problem, result.multiplier)
-    if problem.comm.size > 1:
-        assert plan.polish == "none" and result.converged
-        assert rel_diff(u, _global(problem, tight.u.x.array)) <= 1e-5
-        return
+    centralised = plan.step1_options.get("mat_mumps_icntl_20") == 0
+    assert centralised == (problem.comm.size > 1)
     assert plan.polish == "inverse" and plan.step1 == "factorised" and plan.metric == "mass"
     assert result.polish.kind == "inverse"
     assert result.polish.polished_at == result.iterations < tight.iterations
@@ -314,7 +312,7 @@ def test_a_floating_3d_body_past_the_condensed_rule_polishes_from_the_step1_fact
 
 def test_a_floating_3d_body_keeps_its_factorisation_for_polishing(monkeypatch):
     """Past FACTOR_FLOPS_LIMIT a held body takes multigrid; a floating one that would
-    polish from its factors keeps them up to FLOATING_FACTOR_FLOPS_LIMIT (one process)."""
+    polish from its factors keeps them up to FLOATING_FACTOR_FLOPS_LIMIT."""
     import admm_dolfinx.admm.plan as plan_module
 
     _no_condensed_rule(monkeypatch)
@@ -325,11 +323,8 @@ def test_a_floating_3d_body_keeps_its_factorisation_for_polishing(monkeypatch):
     floating = hertz_sphere(level=0).problem()
     with ADMMSolver(floating) as solver:
         plan = solver.plan
-    if floating.comm.size > 1:
-        assert plan.step1 == "iterative" and plan.polish == "none"
-    else:
-        assert plan.step1 == "factorised" and plan.polish == "inverse"
-        assert "floating body" in plan.describe()
+    assert plan.step1 == "factorised" and plan.polish == "inverse"
+    assert "floating body" in plan.describe()
     monkeypatch.setattr(plan_module, "FLOATING_FACTOR_FLOPS_LIMIT", 1.0)
     with ADMMSolver(floating) as solver:
         assert solver.plan.step1 == "iterative"

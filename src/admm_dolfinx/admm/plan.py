@@ -19,7 +19,7 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   the surface metric, which uses λ_min and λ_max roughly);
 * polishing: dense (the compliance of Γ_C, where S_C is at hand), inverse (the same
   compliance read off step 1's own factors by MUMPS's selected inverse entries: a 3D
-  body that the contact alone holds, one process, Γ_C past the condensed rule but
+  body that the contact alone holds, Γ_C past the condensed rule but
   within :data:`INVERSE_MAX_CONTACT_NODES` and :data:`INVERSE_MEMORY_FRACTION`),
   sparse (2D, factorisations of the body), or none;
 * the penalty metric: the paper's r M, or the surface metric r(M + βL_Γ) (3D).
@@ -35,6 +35,7 @@ from mpi4py import MPI
 from admm_dolfinx.admm.settings import ADMMSettings
 from admm_dolfinx.linalg.condensed import condensed_factor_applies
 from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
+from admm_dolfinx.linalg.mumps_schur import CENTRALISED_RHS
 from admm_dolfinx.linalg.petsc import is_factorisation, iterative_options
 from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL
 from admm_dolfinx.penalty.surface import SURFACE_PENALTY_TOL
@@ -158,7 +159,7 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         may_polish
         and (auto or settings.polish)
         and gdim == 3
-        and _inverse_applies(problem, options, serial, condensed)
+        and _inverse_applies(problem, options, condensed)
     ):
         polish = "inverse"
         reasons.append(
@@ -229,7 +230,10 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         metric=metric,
         private_schur=bool(schur and not condensed),
         factor_options=options if factor else None,
-        step1_options=options,
+        # reading inverse entries under MPI needs a centralised right-hand side
+        step1_options=(
+            {**options, **CENTRALISED_RHS} if polish == "inverse" and not serial else options
+        ),
         inner_rtol=_inner_rtol(settings, options) if step1 == "iterative" else None,
         reasons=tuple(reasons),
     )
@@ -243,13 +247,13 @@ def _polishes_from_factors(problem: ContactProblem, settings: ADMMSettings) -> b
         and settings.penalty_metric != "surface"
         and settings.condensed is not True
         and problem.gdim == 3
-        and _inverse_applies(problem, {}, problem.comm.size == 1, False)
+        and _inverse_applies(problem, {}, False)
     )
 
 
-def _inverse_applies(problem: ContactProblem, options: dict, serial: bool, condensed: bool):
+def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
     """Whether T can be read off a factorised step 1 (see ``INVERSE_*``); collective."""
-    if not (serial and is_factorisation(options) and not condensed):
+    if not (is_factorisation(options) and not condensed):
         return False
     if not problem.rigid_motions.floating:
         return False

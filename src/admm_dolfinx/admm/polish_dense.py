@@ -50,7 +50,7 @@ import numpy as np
 import numpy.typing as npt
 
 from admm_dolfinx._logging import get_logger
-from admm_dolfinx._mpi import RankLayout, from_rank0
+from admm_dolfinx._mpi import RankLayout, collective_call, from_rank0
 from admm_dolfinx.admm.active_set import ActiveSetWalk
 from admm_dolfinx.linalg.condensed import ContactSupport
 from admm_dolfinx.linalg.mumps_schur import inverse_block
@@ -129,7 +129,7 @@ class ActiveSetPolish:
     def from_factors(
         cls, problem: ContactProblem, operator, rounds: int = MAX_ROUNDS
     ) -> ActiveSetPolish:
-        """From the MUMPS factors of step 1's A + rK (a factorised step 1, one process).
+        """From the MUMPS factors of step 1's A + rK (a factorised step 1).
 
         T = Wᵀ [(A + rK)⁻¹]_CC W is read off the factors that step 1 already has, by
         MUMPS's selected entries of the inverse
@@ -139,11 +139,11 @@ class ActiveSetPolish:
         Args:
             problem: The contact problem.
             operator: Step 1's :class:`~admm_dolfinx.linalg.operators.PenalisedOperator`
-                (its :meth:`set_penalty` is called before this polisher's).
+                (its :meth:`set_penalty` is called before this polisher's; under MPI
+                factorised with
+                :data:`~admm_dolfinx.linalg.mumps_schur.CENTRALISED_RHS`).
             rounds: Primal-dual active-set corrections per guess.
         """
-        if problem.comm.size != 1:
-            raise ValueError("polishing from the step-1 factors needs one process.")
         support = ContactSupport.build(problem)
         polish = cls(problem, None, None, support.weights, rounds)
         polish._factors, polish._dofs = operator, support.dofs
@@ -161,9 +161,23 @@ class ActiveSetPolish:
         self.penalty = float(r)
         self._walk.clear()
         self._compliance = self._shifted = None
+        block = None
+        if self._factors is not None:  # collective: MUMPS reads (A + rK)⁻¹_CC on rank 0
+            try:
+                block = collective_call(
+                    self.comm, lambda: self._inverse_block(r), "reading (A + rK)⁻¹_CC"
+                )
+            except Exception as error:  # raised on every rank alike
+                logger.warning(
+                    "Active-set polishing is off for this penalty: %s: %s",
+                    type(error).__name__,
+                    error,
+                )
+                self.setup_time = from_rank0(self.comm, time.perf_counter() - t0)
+                return
         if self.comm.rank == 0:
             try:  # never raise on rank 0 alone: the other ranks would wait
-                self._compliance = self._compliance_at(r)
+                self._compliance = self._compliance_at(r, block)
                 self._shifted = np.eye(self._compliance.shape[0]) - r * self._compliance
             except Exception as error:  # polishing is an option: the ADMM goes on without
                 self._compliance = self._shifted = None
@@ -174,13 +188,20 @@ class ActiveSetPolish:
                 )
         self.setup_time = from_rank0(self.comm, time.perf_counter() - t0)
 
-    def _compliance_at(self, r: float) -> npt.NDArray[np.float64]:
-        """T at the penalty r (rank 0): from S_C, or from step 1's factors at r."""
+    def _inverse_block(self, r: float) -> npt.NDArray[np.float64] | None:
+        """[(A + rK)⁻¹]_CC from step 1's factors (rank 0; None elsewhere); collective."""
+        assert self._factors is not None and self._dofs is not None
+        if self._factors.penalty != r:
+            raise RuntimeError("step 1 is not factorised at this penalty.")
+        return inverse_block(self._factors.ksp.getPC().getFactorMatrix(), self._dofs)
+
+    def _compliance_at(
+        self, r: float, block: npt.NDArray[np.float64] | None = None
+    ) -> npt.NDArray[np.float64]:
+        """T at the penalty r (rank 0): from S_C, or from the block of step 1's factors."""
         if self._factors is not None:
-            if self._factors.penalty != r or self._weights is None or self._dofs is None:
-                raise RuntimeError("step 1 is not factorised at this penalty.")
-            factor = self._factors.ksp.getPC().getFactorMatrix()
-            block = inverse_block(factor, self._dofs)
+            if block is None or self._weights is None:
+                raise RuntimeError("no block of (A + rK)⁻¹ was read.")
             return self._weights.T @ block @ self._weights
         schur, k_cc, weights = self._dense_data()
         return compliance_matrix(schur, k_cc, weights, r)

@@ -242,7 +242,7 @@ class ADMMSolver:
             elif plan.step1 == "iterative":
                 self.operator = IterativeOperator(problem, prefixes["step1"], plan.step1_options)
             else:
-                self.operator = PenalisedOperator(problem, prefixes["step1"], s.petsc_options)
+                self.operator = PenalisedOperator(problem, prefixes["step1"], plan.step1_options)
             schur_source = self.operator if plan.step1 == "condensed" else None
             if plan.private_schur:  # S_C for r* and polishing; freed once read
                 private = CondensedOperator(problem, prefixes["schur"], s.petsc_options)

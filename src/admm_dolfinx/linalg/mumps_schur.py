@@ -15,6 +15,7 @@ import numpy.typing as npt
 from petsc4py import PETSc
 
 __all__ = [
+    "CENTRALISED_RHS",
     "SchurBlock",
     "factorize_schur",
     "full_symmetric",
@@ -104,42 +105,63 @@ def factorize_schur(factor: PETSc.Mat) -> None:
 def selected_inverse_entries(factor: PETSc.Mat, pattern: PETSc.Mat) -> None:
     """``MatMumpsGetInverseTranspose``: fill ``pattern`` with those entries of A⁻ᵀ.
 
-    MUMPS's selected entries of the inverse (ICNTL(30)) from existing factors; one
-    process (``pattern`` is a sequential AIJ matrix of A's size). The factors are left
-    ready for ordinary solves again.
+    MUMPS's selected entries of the inverse (ICNTL(30)) from existing factors. The
+    right-hand side is centralised: ``pattern`` is an AIJ matrix of A's size whose rows
+    all live on rank 0 (a sequential one on one process). Under MPI the factorisation
+    must have been made with a centralised dense right-hand side
+    (``mat_mumps_icntl_20 = 0``: MUMPS refuses a sparse one next to the distributed
+    one's arrays). The factors are left ready for ordinary solves again (the
+    right-hand side and solution formats, ICNTL(20) and ICNTL(21), restored).
     """
-    _call("MatMumpsGetInverseTranspose", factor.handle, pattern.handle)
-    factor.setMumpsIcntl(30, 0)
-    factor.setMumpsIcntl(20, 0)
+    rhs, solution = factor.getMumpsIcntl(20), factor.getMumpsIcntl(21)
+    try:
+        _call("MatMumpsGetInverseTranspose", factor.handle, pattern.handle)
+    finally:
+        factor.setMumpsIcntl(30, 0)
+        factor.setMumpsIcntl(20, rhs)
+        factor.setMumpsIcntl(21, solution)
 
 
-def inverse_block(factor: PETSc.Mat, dofs: npt.NDArray[np.integer]) -> npt.NDArray[np.float64]:
+#: The step-1 options under which :func:`inverse_block` works on several processes.
+CENTRALISED_RHS = {"mat_mumps_icntl_20": 0}
+
+
+def inverse_block(
+    factor: PETSc.Mat, dofs: npt.NDArray[np.integer]
+) -> npt.NDArray[np.float64] | None:
     """The dense block (A⁻¹)_CC, C = ``dofs``, from MUMPS factors of a symmetric A.
 
     MUMPS's selected entries of the inverse (:func:`selected_inverse_entries`): the
-    factors are reused, no other factorisation is made. One process. Memory: the
-    requested pattern and the dense block, about 24 c² bytes for c = |C|.
+    factors are reused, no other factorisation is made. Collective: the requested
+    pattern lives on rank 0, and so does the block; under MPI the factorisation must
+    have been made with :data:`CENTRALISED_RHS`. Memory on rank 0: the pattern and the
+    dense block, about 24 c² bytes for c = |C|.
 
     Args:
         factor: The factor matrix of a MUMPS Cholesky (or LU) factorisation of A.
-        dofs: The global indices of C, sorted.
+        dofs: The global indices of C, sorted (on rank 0; ignored elsewhere).
 
     Returns:
-        The c × c block, symmetrised (the two triangles agree to round-off).
+        The c × c block, symmetrised (the two triangles agree to round-off), on rank 0;
+        None elsewhere.
     """
+    comm = factor.getComm()
     n = factor.getSize()[0]
-    c = int(dofs.size)
-    counts = np.zeros(n, dtype=PETSc.IntType)
-    counts[dofs] = c
+    host = comm.getRank() == 0
+    rows = n if host else 0
+    c = int(dofs.size) if host else 0
+    counts = np.zeros(rows, dtype=PETSc.IntType)
+    if host:
+        counts[dofs] = c
     indptr = np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType)
-    columns = np.tile(np.asarray(dofs, dtype=PETSc.IntType), c)
+    columns = np.tile(np.asarray(dofs if host else [], dtype=PETSc.IntType), c)
     pattern = PETSc.Mat().createAIJ(
-        (n, n), csr=(indptr, columns, np.zeros(c * c)), comm=PETSc.COMM_SELF
+        ((rows, n), (rows, n)), csr=(indptr, columns, np.zeros(c * c)), comm=comm
     )
     try:
         selected_inverse_entries(factor, pattern)
-        values = pattern.getValuesCSR()[2]
-        block = values.reshape(c, c)  # rows of C in order, each with C's columns sorted
+        # rows of C in order, each with C's columns sorted
+        block = pattern.getValuesCSR()[2].reshape(c, c) if host else None
     finally:
         pattern.destroy()
-    return 0.5 * (block + block.T)
+    return 0.5 * (block + block.T) if block is not None else None
