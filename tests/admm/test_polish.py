@@ -328,3 +328,18 @@ def test_a_floating_3d_body_keeps_its_factorisation_for_polishing(monkeypatch):
     monkeypatch.setattr(plan_module, "FLOATING_FACTOR_FLOPS_LIMIT", 1.0)
     with ADMMSolver(floating) as solver:
         assert solver.plan.step1 == "iterative"
+
+
+def test_the_compliance_from_the_inverse_block_sums_node_by_node():
+    """Wᵀ B W by node sums equals the dense product, with nodes that have no dof in C."""
+    from admm_dolfinx.admm.polish_dense import _congruence
+
+    rng = np.random.default_rng(3)
+    m, c = 40, 100
+    weights = np.zeros((c, m))
+    node = np.sort(rng.integers(0, m - 3, c))  # the last nodes own no dof of C
+    weights[np.arange(c), node] = rng.standard_normal(c)
+    block = rng.standard_normal((c, c))
+    block = block + block.T
+    dense = weights.T @ block @ weights
+    assert np.abs(_congruence(block, weights) - dense).max() <= 1e-13 * np.abs(dense).max()

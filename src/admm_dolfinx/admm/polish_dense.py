@@ -202,7 +202,7 @@ class ActiveSetPolish:
         if self._factors is not None:
             if block is None or self._weights is None:
                 raise RuntimeError("no block of (A + rK)⁻¹ was read.")
-            return self._weights.T @ block @ self._weights
+            return _congruence(block, self._weights)
         schur, k_cc, weights = self._dense_data()
         return compliance_matrix(schur, k_cc, weights, r)
 
@@ -315,3 +315,24 @@ class ActiveSetPolish:
         y_hat = np.where(active, y_active, x)
         lam_hat = np.where(active, r * x, 0.0)
         return y_hat, lam_hat
+
+
+def _congruence(
+    block: npt.NDArray[np.float64], weights: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Wᵀ B W for a W (c × m) with one nonzero per row at most (a dof of C is one node's).
+
+    Column j of W holds node j's normal components: Wᵀ B W sums B's rows and columns
+    node by node, O(c²) work where dense products cost O(c²m).
+    """
+    rows, cols = np.nonzero(weights)
+    order = np.argsort(cols, kind="stable")
+    rows, cols = rows[order], cols[order]
+    values = weights[rows, cols]
+    present, starts = np.unique(cols, return_index=True)
+    by_node = np.add.reduceat(block[:, rows] * values, starts, axis=1)  # B W, c × |present|
+    inner = np.add.reduceat(by_node[rows, :] * values[:, None], starts, axis=0)
+    m = weights.shape[1]
+    out = np.zeros((m, m))
+    out[np.ix_(present, present)] = inner
+    return out
