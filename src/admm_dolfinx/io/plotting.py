@@ -60,6 +60,12 @@ def _pyplot():
     return plt
 
 
+def _ticker():
+    from matplotlib import ticker
+
+    return ticker
+
+
 def von_mises_cells(u: fem.Function, material: LinearElastic) -> fem.Function:
     """Von Mises stress of u as a cell-wise constant (DG0) Function."""
     msh = u.function_space.mesh
@@ -151,7 +157,19 @@ def plot_deformed_von_mises(
             show_edges=True,
             edge_color="black",
             line_width=0.3,
-            scalar_bar_args={"title": "von Mises stress"},
+            # vertical, at the right edge, labels to 3 significant digits: the default
+            # horizontal bar ran its last label off the picture and over the obstacle
+            scalar_bar_args={
+                "title": "von Mises stress",
+                "vertical": True,
+                "position_x": 0.86,
+                "position_y": 0.15,
+                "height": 0.7,
+                "width": 0.06,
+                "fmt": "%.3g",
+                "title_font_size": 16,
+                "label_font_size": 14,
+            },
         )
         if obstacle_mesh is not None:
             drawn = obstacle_mesh
@@ -241,7 +259,12 @@ def _draw_contact_pressure(gathered, gdim, path, title, coordinate) -> None:
         levels = np.linspace(low, 0.0, 21)
         levels[-1] = abs(low) * 1e-9  # include σ_n = 0 (no contact) in the top level
         contour = ax.tricontourf(xc[:, 0], xc[:, 1], -lam, levels=levels, cmap="viridis_r")
-        fig.colorbar(contour, ax=ax, label="normal stress σ_n = −λ")
+        bar = fig.colorbar(contour, ax=ax, label="normal stress σ_n = −λ")
+        # round ticks in scientific notation, not the 21 contour levels' raw values
+        ticks = _ticker().MaxNLocator(nbins=6).tick_values(low, 0.0)
+        bar.set_ticks(ticks[(ticks >= low) & (ticks <= 0.0)])
+        bar.formatter = _ticker().FuncFormatter(lambda value, _: f"{value:.3g}")
+        bar.update_ticks()
         ax.set_aspect("equal")
         ax.set_xlabel("x")
         ax.set_ylabel("y")
