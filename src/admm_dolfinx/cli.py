@@ -38,7 +38,80 @@ def _penalty(text: str):
         ) from None
 
 
+def _numbers(text: str) -> list[float]:
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers such as 0,0,-1, got {text!r}"
+        ) from None
+    return values
+
+
+def _tagged_vector(text: str) -> tuple[int, list[float]]:
+    tag, sep, vector = text.partition(":")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected TAG:VECTOR such as 4:0,-0.01, got {text!r}")
+    try:
+        return int(tag), _numbers(vector)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"the tag of {text!r} is not an integer") from None
+
+
+def _two_parts(text: str) -> tuple[list[float], list[float]]:
+    first, sep, second = text.partition("/")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected A/B such as 0,0,0/0,0,1, got {text!r}")
+    return _numbers(first), _numbers(second)
+
+
+#: The options of ``run --mesh`` (the user's own mesh file).
+_MESH_OPTIONS = ("contact", "fixed", "displace", "traction", "body_force", "plane", "ball")
+
+
+def _scene_from_mesh_file(args):
+    from admm_dolfinx.problem.obstacles import Ball, Plane
+    from admm_dolfinx.scenes.from_file import scene_from_file
+
+    if args.scene is not None or args.level is not None or args.h is not None:
+        raise ValueError("--mesh runs your own mesh: give no scene name, --level or --h with it.")
+    if args.contact is None:
+        raise ValueError("--mesh needs --contact TAG: the tag of the facets that may touch.")
+    if (args.plane is None) == (args.ball is None):
+        raise ValueError(
+            "--mesh needs one obstacle: --plane POINT/NORMAL (the normal from the obstacle "
+            "towards the body, e.g. --plane 0,0,0/0,0,1) or --ball CENTRE/RADIUS."
+        )
+    if args.plane is not None:
+        obstacle = Plane(*args.plane)
+    else:
+        centre, radius = args.ball
+        if len(radius) != 1:
+            raise ValueError(f"--ball takes CENTRE/RADIUS with one radius, got {radius}.")
+        obstacle = Ball(centre, radius[0])
+    return scene_from_file(
+        args.mesh,
+        contact=args.contact,
+        obstacle=obstacle,
+        fixed=args.fixed or (),
+        displaced=dict(args.displace or ()),
+        tractions=dict(args.traction or ()),
+        body_force=args.body_force,
+        E=args.E,
+        nu=args.nu,
+    )
+
+
 def _build_scene(args):
+    if args.mesh is not None:
+        return _scene_from_mesh_file(args)
+    given = [f"--{name.replace('_', '-')}" for name in _MESH_OPTIONS if getattr(args, name)]
+    if given:
+        raise ValueError(f"{', '.join(given)} go with --mesh FILE (your own mesh).")
+    if args.scene is None:
+        raise ValueError(
+            f"run needs a scene ({', '.join(sorted(SCENES))}) or --mesh FILE (your own)."
+        )
     if args.scene == "example1":
         if args.level is not None:
             raise ValueError(
@@ -197,9 +270,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Solve one of the package's scenes: example1 (rectangle "
         "on a foundation), example2 (Hertz quarter cylinder), example3 "
         "(block on a half-ball), the paper's; hertz (a quarter cylinder on a plane) "
-        "and hertz_sphere (a quarter sphere on a plane), Hertz's.",
+        "and hertz_sphere (a quarter sphere on a plane), Hertz's; or your own gmsh mesh "
+        "with --mesh.",
     )
-    run.add_argument("scene", choices=sorted(SCENES))
+    run.add_argument("scene", nargs="?", choices=sorted(SCENES))
     run.add_argument("--h", type=float, default=None, help="example1: mesh size (1/32)")
     run.add_argument(
         "--mesher",
@@ -213,6 +287,43 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="the other scenes: mesh level (0, default; each level halves the element size)",
     )
+    own = run.add_argument_group(
+        "your own mesh",
+        "Run a gmsh .msh file instead of a scene: its boundary parts are physical groups "
+        "of facets, named here by their tags. Example: run --mesh part.msh --contact 3 "
+        "--fixed 1 --traction 4:0,0,-10 --plane 0,0,-0.01/0,0,1",
+    )
+    own.add_argument("--mesh", default=None, metavar="FILE", help="a gmsh .msh file")
+    own.add_argument("--contact", type=int, metavar="TAG", help="tag of the contact facets")
+    own.add_argument(
+        "--fixed", type=int, action="append", metavar="TAG", help="clamp these facets (u = 0)"
+    )
+    own.add_argument(
+        "--displace",
+        type=_tagged_vector,
+        action="append",
+        metavar="TAG:VECTOR",
+        help="prescribe the displacement of these facets, e.g. 2:0,-0.01",
+    )
+    own.add_argument(
+        "--traction",
+        type=_tagged_vector,
+        action="append",
+        metavar="TAG:VECTOR",
+        help="a surface traction on these facets (force per area), e.g. 4:0,0,-10",
+    )
+    own.add_argument(
+        "--body-force", type=_numbers, metavar="VECTOR", help="force per volume, e.g. 0,-9.8"
+    )
+    own.add_argument(
+        "--plane",
+        type=_two_parts,
+        metavar="POINT/NORMAL",
+        help="a rigid plane; the normal points from it towards the body",
+    )
+    own.add_argument("--ball", type=_two_parts, metavar="CENTRE/RADIUS", help="a rigid ball")
+    own.add_argument("--E", type=float, default=1000.0, help="Young's modulus (1000)")
+    own.add_argument("--nu", type=float, default=0.3, help="Poisson's ratio (0.3)")
     run.add_argument(
         "--penalty", type=_penalty, default="auto", help="penalty r, or 'auto' for r* (default)"
     )

@@ -42,6 +42,11 @@ def result_summary(scene: Scene, problem: ContactProblem, result: ADMMResult) ->
         "penalty_estimate": estimate,
         "active_nodes": result.num_active,
         "max_pressure": result.max_pressure,
+        "mean_pressure": result.mean_pressure,
+        "contact_area": result.contact_area,
+        "contact_force": (
+            None if result.contact_force is None else [float(x) for x in result.contact_force]
+        ),
         "kkt": result.kkt.as_dict(),
         "timings": result.timings.as_dict(),
         "settings": result.settings.as_dict(),
