@@ -40,16 +40,12 @@ test: lint test-serial test-mpi reproduce-quick test-demos test-benchmarks docs
 test-serial: venv
 	$(PY) $(PYTEST)
 
-# -n 2: everything; -n 3 and -n 4 (oversubscribed on two cores): the parallel
-# comparisons and the reliability suite's partition matrix (tests/reliability).
+# -n 2: everything; -n 3 and -n 4 (oversubscribed on two cores): the tests marked
+# mpi3 and mpi4 (the parallel comparisons and the partition matrix; pyproject.toml).
 test-mpi: venv
 	$(MPIEXEC) -n 2 $(PY) -m mpi4py $(PYTEST)
-	$(MPIEXEC) -n 3 $(PY) -m mpi4py $(PYTEST) tests/test_parallel.py tests/test_mpi.py tests/test_threads.py tests/reliability \
-		tests/adapt/test_adapt_partitions.py \
-		--ignore=tests/reliability/test_large_2d.py
-	$(MPIEXEC) -n 4 $(PY) -m mpi4py $(PYTEST) tests/test_mpi.py tests/reliability/test_user_code.py \
-		tests/reliability/test_wrong_answers.py tests/reliability/test_partitions.py \
-		-k "not paths and not estimates and not load_steps"
+	$(MPIEXEC) -n 3 $(PY) -m mpi4py $(PYTEST) -m mpi3
+	$(MPIEXEC) -n 4 $(PY) -m mpi4py $(PYTEST) -m mpi4
 
 test-demos: venv
 	$(PY) demos/run_all.py

@@ -23,6 +23,8 @@ from admm_dolfinx._mpi import (
     run_on_rank0,
 )
 
+pytestmark = [pytest.mark.mpi3, pytest.mark.mpi4]
+
 COMM = MPI.COMM_WORLD
 
 

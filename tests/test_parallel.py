@@ -15,6 +15,8 @@ from admm_dolfinx.scenes.library import example1
 
 from conftest import gather_nodal, rel_diff
 
+pytestmark = [pytest.mark.mpi3]
+
 parallel_only = pytest.mark.skipif(MPI.COMM_WORLD.size == 1, reason="needs mpiexec -n >= 2")
 
 

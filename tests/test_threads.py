@@ -16,6 +16,8 @@ from admm_dolfinx import _threads
 from admm_dolfinx._threads import THREAD_VARIABLES, cores_per_rank, pools_above, share_cores
 from admm_dolfinx.scenes import example1
 
+pytestmark = [pytest.mark.mpi3]
+
 COMM = MPI.COMM_WORLD
 
 

@@ -19,6 +19,8 @@ from admm_dolfinx.adapt.marking import (
 from admm_dolfinx.adapt.refinement import refine_contact_mesh
 from admm_dolfinx.scenes import library as lib
 
+pytestmark = [pytest.mark.mpi3]
+
 
 def _scene(comm):
     return lib.hertz(comm, half_width=0.2, h_contact=1.0, h_far=1.0)

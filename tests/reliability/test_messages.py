@@ -23,7 +23,7 @@ from admm_dolfinx.scenes.library import example1, example3
 
 from conftest import problem_from
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.mpi3]
 COMM = MPI.COMM_WORLD
 
 

@@ -21,7 +21,7 @@ from mpi4py import MPI
 from admm_dolfinx.cli import main
 from admm_dolfinx.io.output import STAGING_MARK, output_folder, write_json
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.mpi3]
 COMM = MPI.COMM_WORLD
 
 

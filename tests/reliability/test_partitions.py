@@ -21,7 +21,7 @@ from admm_dolfinx.studies.baselines import solve_snes_vi
 
 from partitions import CELLS, PARTITIONS, TOP, gathered, owners, pressed_box
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.mpi3]
 COMM = MPI.COMM_WORLD
 CASES = [(gdim, cell, how) for gdim in (2, 3) for cell in CELLS[gdim] for how in PARTITIONS]
 TIGHT = {"rtol": 1e-11, "max_iter": 500}
@@ -56,6 +56,7 @@ def _serial(gdim, cell, how, load=None, **solver):
 
 
 @pytest.mark.parametrize("gdim,cell,how", CASES)
+@pytest.mark.mpi4
 def test_default_solve_matches_serial(gdim, cell, how):
     problem = pressed_box(COMM, gdim, cell, how, obstacle=_ball(gdim))
     _check_partition(problem, how)
@@ -80,6 +81,7 @@ AWKWARD = [
 
 
 @pytest.mark.parametrize("gdim,cell,how", AWKWARD)
+@pytest.mark.mpi4
 def test_floating_body_matches_serial(gdim, cell, how):
     """Held by the contact alone: the default polishes (S_C is cheap here) in 2D and 3D."""
     problem = pressed_box(COMM, gdim, cell, how, obstacle=_ball(gdim), load=0.02)
@@ -168,6 +170,7 @@ def test_load_steps_and_moving_obstacle_match_serial(gdim, cell, how):
 
 
 @pytest.mark.parametrize("gdim,cell,how", AWKWARD)
+@pytest.mark.mpi4
 def test_snes_vi_baseline_on_partitions(gdim, cell, how):
     """The independent reference solver also runs on every partition (flat contact)."""
     normal = np.zeros(gdim)
@@ -182,6 +185,7 @@ def test_snes_vi_baseline_on_partitions(gdim, cell, how):
 
 
 @pytest.mark.parametrize("gdim,cell,how", AWKWARD[:2])
+@pytest.mark.mpi4
 def test_outputs_on_partitions(gdim, cell, how, tmp_path_factory):
     """XDMF and the figures are written on every partition (a rank without cells too)."""
     from admm_dolfinx.io.output import output_folder, write_xdmf
@@ -203,6 +207,7 @@ def test_outputs_on_partitions(gdim, cell, how, tmp_path_factory):
 
 
 @pytest.mark.parametrize("gdim,cell,how", AWKWARD)
+@pytest.mark.mpi4
 def test_engineering_outputs_match_serial(gdim, cell, how, tmp_path_factory):
     """Force, reaction, area, pressures, gap, active set and the ParaView writer on every
     partition (a rank without contact nodes or cells) against the same problem serially."""
