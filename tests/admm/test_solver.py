@@ -81,8 +81,6 @@ def test_history_and_timings_are_recorded():
         paper = solver.solve()
     assert paper.history["du"][-1] <= 1e-5 and paper.history["dp"][-1] <= 1e-5
     assert paper.history["du"][-2] > 1e-5 or paper.history["dp"][-2] > 1e-5
-    for key in ("assembly", "factorization", "iterations", "total"):
-        assert result.timings[key] >= 0.0
     assert "converged" in result.summary()
     assert MPI.COMM_WORLD.allreduce(result.iterations, op=MPI.MAX) == result.iterations
 

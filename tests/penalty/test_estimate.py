@@ -174,9 +174,7 @@ def test_auto_penalty_2d_factorises_the_body_once():
     serial = problem.comm.size == 1
     assert operator == ("CondensedOperator" if serial else "PenalisedOperator")
     assert (sym1 - sym0, num1 - num0) == ((1, 1) if serial else (2, 2))
-    if serial:
-        assert result.timings["penalty"] == estimate.time
-    else:  # the condensed factorisation that serves r* (and polishing) is r*'s cost
+    if not serial:  # the condensed factorisation that serves r* (and polishing) is r*'s cost
         assert result.timings["penalty"] > estimate.time
 
 
