@@ -48,7 +48,7 @@ test-mpi: venv
 	$(MPIEXEC) -n 4 $(PY) -m mpi4py $(PYTEST) -m mpi4
 
 test-demos: venv
-	$(PY) demos/run_all.py
+	$(PY) $(PYTEST) -m demos tests/test_demos.py
 
 # Every benchmark still runs (smallest sizes; the MPI-capable ones also under -n 2).
 test-benchmarks: venv

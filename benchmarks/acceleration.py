@@ -22,7 +22,7 @@ For every mesh, in one run:
    factorisation is the fastest condensed one; the plain solve factorises A + r*NᵀMN.
 
 ``surface`` (3D only) is both with the surface metric r(M + βL_Γ), its own β and r
-and its own factorisation (:mod:`admm_dolfinx.linalg.surface_metric`). The default is
+and its own factorisation (:mod:`admm_dolfinx.operators.surface_metric`). The default is
 ``polished`` where the solver polishes by default (2D), ``surface`` in 3D. r̄
 minimises the iterations to 1e-6 over 12 penalties log-spaced in [r*/10, 10 r*].
 On the largest meshes, where that search costs too much, each of the 12 penalties
@@ -57,7 +57,7 @@ from tables import markdown_table, print_and_save
 import admm_dolfinx
 import admm_dolfinx.admm.polish_dense as polish_module
 from admm_dolfinx.admm.solver import ADMMConvergenceError
-from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.operators.penalised import PenalisedOperator
 from admm_dolfinx.scenes.library import example1, example2, example3
 from admm_dolfinx.studies.baselines import solve_snes_vi
 

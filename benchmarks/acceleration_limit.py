@@ -43,7 +43,7 @@ from admm_dolfinx.admm.settings import PRESETS
 
 DEFAULT_ALPHA = PRESETS["accelerated"]["alpha"]
 DEFAULT_ANDERSON = PRESETS["accelerated"]["anderson"]
-from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.operators.penalised import PenalisedOperator
 from admm_dolfinx.scenes.library import example1, example3
 
 #: The paper's contact model (along the body's normal): the README's tables of this

@@ -25,7 +25,7 @@ from tables import print_and_save
 from timing import best_of_rounds
 
 import admm_dolfinx
-from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.operators.penalised import PenalisedOperator
 from admm_dolfinx.scenes.library import example1, example2, example3
 
 #: The paper's contact model (along the body's normal): the README's tables of this

@@ -3,13 +3,13 @@
 In 2D the solver polishes by default. In 3D polishing needs the dense Schur complement
 S_C of A onto the contact *surface*, whose factorisation costs more than A + r*NᵀMN's;
 the default polishes only a body that the contact alone holds (a floating one, below
-the dense-work limit of :func:`admm_dolfinx.linalg.condensed.condensed_factor_applies`).
+the dense-work limit of :func:`admm_dolfinx.operators.condensed.condensed_factor_applies`).
 Two scenes: Example 3 (``--scene example3``, held by its top face; the paper's
 contact model) and the Hertz sphere (``--scene hertz_sphere``, floating; the
 obstacle's normal). For each mesh, in one run:
 
 * ``polish=False``: r* by the iterative estimate, β and r of the surface metric
-  (:mod:`admm_dolfinx.linalg.surface_metric`), one factorisation of A + rNᵀ(M + βL_Γ)N,
+  (:mod:`admm_dolfinx.operators.surface_metric`), one factorisation of A + rNᵀ(M + βL_Γ)N,
   accelerated ADMM to the default tolerance (1e-6);
 * ``polish=True``: one factorisation of A condensed onto Γ_C, which gives r* densely,
   the compliance G and every step-1 solve; ADMM with active-set polishing;
@@ -49,9 +49,9 @@ from tables import print_and_save
 from timing import timed
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx.linalg.condensed import ContactSupport
 from admm_dolfinx.linalg.mumps_schur import inverse_block
-from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.operators.condensed import ContactSupport
+from admm_dolfinx.operators.penalised import PenalisedOperator
 from admm_dolfinx.scenes.library import example3, hertz_sphere
 
 #: Per scene: the builder, the contact model and the meshes. Example 3 in the paper's

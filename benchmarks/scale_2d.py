@@ -11,7 +11,7 @@ Example 1 of the paper (gmsh's unstructured mesh) at h = 1/64 … 1/512 (1.2M do
 * ``condensed AMD``, ``condensed METIS``: the condensed factorisation (A with the
   Schur complement S_C onto the contact dofs, what the default factorises in 2D)
   under each of MUMPS's orderings; the default takes METIS from
-  ``CONDENSED_METIS_DOFS`` dofs on (:mod:`admm_dolfinx.linalg.condensed`).
+  ``CONDENSED_METIS_DOFS`` dofs on (:mod:`admm_dolfinx.operators.condensed`).
 
 Columns: seconds (``mesh s`` is not in ``total``), ADMM iterations, polishing
 attempts and rounds (primal-dual active-set corrections; a walk stopped by its round
@@ -60,7 +60,7 @@ def _plain_solve(problem) -> dict:
 
 def _condensed_factorisation(problem, ordering: int) -> float:
     """Seconds of the condensed factorisation (S_C onto Γ_C) under one MUMPS ordering."""
-    from admm_dolfinx.linalg.condensed import CondensedOperator
+    from admm_dolfinx.operators.condensed import CondensedOperator
 
     operator = CondensedOperator(problem, f"ordering{ordering}_", {"mat_mumps_icntl_7": ordering})
     try:

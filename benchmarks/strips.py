@@ -11,7 +11,7 @@ path: dense or sparse polishing), iterations, time per phase, KKT residuals, and
 distance to SNES VI on the same discrete problem. Then, side by side in one run, the
 two polishing paths on the same problems (the dense one forced, the sparse one forced;
 the strips and the paper's compact Example 1):
-the time ratio that ``DENSE_COST_RATIO`` in :mod:`admm_dolfinx.linalg.condensed` rests on.
+the time ratio that ``DENSE_COST_RATIO`` in :mod:`admm_dolfinx.operators.condensed` rests on.
 Writes out_benchmarks/strips.csv and strips_paths.csv.
 """
 
@@ -26,7 +26,7 @@ from mpi4py import MPI
 from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx.linalg import condensed as condensed_module
+from admm_dolfinx.operators import condensed as condensed_module
 from admm_dolfinx.scenes.hard_cases import strip
 from admm_dolfinx.scenes.library import example1
 from admm_dolfinx.studies.baselines import solve_snes_vi

@@ -58,8 +58,8 @@ from tables import print_and_save
 
 from admm_dolfinx import ADMMSolver, Ball, Plane
 from admm_dolfinx.admm.solver import ADMMConvergenceError
-from admm_dolfinx.linalg.operators import PenalisedOperator
-from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.operators.penalised import PenalisedOperator
+from admm_dolfinx.operators.surface_metric import SurfaceMetric
 from admm_dolfinx.scenes.library import Scene, example3, example3_hexahedral, pressed_block
 
 #: The paper's contact model (along the body's normal): the README's tables of this

@@ -40,7 +40,7 @@ from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
 from admm_dolfinx.io.output import output_folder
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 
 parser = argparse.ArgumentParser(description="A part refined to a target error")
 parser.add_argument("--h", type=float, default=0.25, help="the first mesh's size")

@@ -22,8 +22,8 @@ import sys
 from mpi4py import MPI
 
 import admm_dolfinx
-from admm_dolfinx.io.report import write_scene_outputs
 from admm_dolfinx.scenes.library import example3
+from admm_dolfinx.studies.report import write_scene_outputs
 from admm_dolfinx.studies.sweep import paper_penalty_grid, sample_penalty
 
 parser = argparse.ArgumentParser(description="Example 3 (block on a half-ball)")

@@ -38,7 +38,7 @@ from mpi4py import MPI
 
 from admm_dolfinx.io.output import output_folder
 from admm_dolfinx.io.paraview import ContactWriter
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 
 parser = argparse.ArgumentParser(description="A gmsh part pressed onto a rigid plate")
 parser.add_argument("--h", type=float, default=0.08, help="mesh size (default 0.08)")

@@ -203,8 +203,8 @@ def test_missing_plotting_extra_is_one_line_and_the_rest_is_written(tmp_path_fac
     import warnings
 
     import admm_dolfinx
-    from admm_dolfinx.io import report
     from admm_dolfinx.scenes.library import example1
+    from admm_dolfinx.studies import report
 
     monkeypatch.setattr(report, "available", lambda name: name != "pyvista")
     tmp = _shared_tmp(tmp_path_factory, "noplot")
@@ -241,8 +241,8 @@ def test_the_figure_moves_the_obstacle_with_the_magnified_body():
     """The active nodes of Example 1 touch the plane 0.01 below: their mean displacement
     is the gap, so the magnified picture draws the plane that much further down."""
     import admm_dolfinx
-    from admm_dolfinx.io.report import _contact_displacement
     from admm_dolfinx.scenes.library import example1
+    from admm_dolfinx.studies.report import _contact_displacement
 
     problem = example1(h=0.125).problem()
     result = admm_dolfinx.ADMMSolver(problem, petsc_options_prefix="shift_").solve()

@@ -854,7 +854,7 @@ CONSTANTS: list[tuple[str, str, str, str, dict[str, str] | None]] = [
     (
         "penalty.md",
         "2D with MUMPS and at most 4000 contact nodes",
-        "src/admm_dolfinx/linalg/condensed.py",
+        "src/admm_dolfinx/operators/condensed.py",
         r"^MAX_CONDENSED_CONTACT_NODES = (\d+)$",
         None,
     ),
@@ -868,14 +868,14 @@ CONSTANTS: list[tuple[str, str, str, str, dict[str, str] | None]] = [
     (
         "validation.md",
         "the default takes the dense form while m³ ≤ 300 n^{3/2}",
-        "src/admm_dolfinx/linalg/condensed.py",
+        "src/admm_dolfinx/operators/condensed.py",
         r"^DENSE_COST_RATIO = (\S+)$",
         {"300.0": "300"},
     ),
     (
         "acceleration.md",
         "(m³ ≤ 300 n^{3/2}, `condensed_factor_applies`)",
-        "src/admm_dolfinx/linalg/condensed.py",
+        "src/admm_dolfinx/operators/condensed.py",
         r"^DENSE_COST_RATIO = (\S+)$",
         {"300.0": "300"},
     ),

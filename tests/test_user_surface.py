@@ -8,7 +8,7 @@ from admm_dolfinx.scenes.library import example1
 def test_the_readme_names_are_importable_from_the_top_level():
     """LinearElastic and ContactWriter are used in the README: no submodule needed."""
     from admm_dolfinx.io.paraview import ContactWriter
-    from admm_dolfinx.problem.material import LinearElastic
+    from admm_dolfinx.scenes.material import LinearElastic
 
     assert admm_dolfinx.LinearElastic is LinearElastic
     assert admm_dolfinx.ContactWriter is ContactWriter

@@ -25,7 +25,7 @@ from admm_dolfinx.io.paraview import ContactWriter
 from admm_dolfinx.penalty import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.problem import Ball, ContactProblem, Obstacle, Plane
 from admm_dolfinx.problem.kkt import KKTResiduals
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 
 try:
     from importlib.metadata import version as _version

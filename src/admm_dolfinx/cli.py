@@ -17,8 +17,8 @@ from mpi4py import MPI
 
 from admm_dolfinx.admm.solver import ADMMConvergenceError, ADMMSolver
 from admm_dolfinx.io.output import check_output_folder, write_json
-from admm_dolfinx.io.report import result_summary, write_scene_outputs
 from admm_dolfinx.scenes.library import SCENES
+from admm_dolfinx.studies.report import result_summary, write_scene_outputs
 from admm_dolfinx.studies.reproduce import TABLES, run_table
 
 

@@ -274,7 +274,7 @@ def test_polish_with_prescribed_tangential_displacement_on_a_curved_contact_boun
 
 def _no_condensed_rule(monkeypatch):
     """Γ_C past the condensed rule, whatever its size: S_C is never computed unasked."""
-    import admm_dolfinx.linalg.condensed as condensed
+    import admm_dolfinx.operators.condensed as condensed
 
     monkeypatch.setattr(condensed, "DENSE_COST_RATIO", 0.0)
 

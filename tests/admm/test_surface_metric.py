@@ -17,7 +17,7 @@ from petsc4py import PETSc
 
 from admm_dolfinx import ADMMSolver, Ball
 from admm_dolfinx.admm.surface_projection import SurfaceProjection
-from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.operators.surface_metric import SurfaceMetric
 from admm_dolfinx.scenes.library import example1, example3, example3_hexahedral, pressed_block
 from admm_dolfinx.studies.baselines import solve_snes_vi
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 from petsc4py import PETSc
 
-from admm_dolfinx.linalg.operators import IterativeOperator, PenalisedOperator
 from admm_dolfinx.linalg.petsc import iterative_options
-from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.operators.penalised import IterativeOperator, PenalisedOperator
+from admm_dolfinx.operators.surface_metric import SurfaceMetric
 from admm_dolfinx.scenes import example3
 
 pytestmark = pytest.mark.timeout(300)

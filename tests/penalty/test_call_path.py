@@ -83,7 +83,8 @@ def _cycle(edges) -> list[str] | None:
     "scene, settings, most",
     [
         (lambda: example1(h=1 / 16), {}, 6),  # 2D default: dense r*
-        (lambda: example3(level=0), {}, 6),  # 3D default: layers and multigrid
+        # 3D default: multigrid, and layers of cells along Γ_C (problem/contact_layer.py)
+        (lambda: example3(level=0), {}, 7),
         # the factorised method also enters the step-1 operator that it shares
         (lambda: example3(level=0), {"penalty_method": "factorised"}, 7),
     ],

@@ -358,7 +358,7 @@ def test_ritz_start_falls_back_when_cg_breaks_down():
 
 def test_iterative_method_with_a_condensed_operator_uses_its_own():
     """method="local" with the solver's condensed operator: iterative, not dense."""
-    from admm_dolfinx.linalg.condensed import CondensedOperator
+    from admm_dolfinx.operators.condensed import CondensedOperator
 
     problem = example1(h=1 / 16).problem()
     condensed = CondensedOperator(problem, "test_shared_")

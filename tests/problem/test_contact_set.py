@@ -9,8 +9,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx import ContactProblem, Plane
-from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.scenes.library import example1
+from admm_dolfinx.scenes.material import LinearElastic
 from admm_dolfinx.scenes.meshing import tag_boundary
 
 

@@ -15,7 +15,7 @@ from dolfinx import fem
 from mpi4py import MPI
 
 import admm_dolfinx
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 from admm_dolfinx.studies.baselines import solve_snes_vi
 
 gmsh = pytest.importorskip("gmsh")

@@ -9,8 +9,8 @@ from dolfinx import fem, mesh
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSolver, Ball, ContactProblem, Obstacle, Plane
-from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.scenes.library import example1
+from admm_dolfinx.scenes.material import LinearElastic
 
 from conftest import problem_from
 

@@ -17,7 +17,7 @@ from mpi4py import MPI
 
 import admm_dolfinx
 from admm_dolfinx.io.paraview import ContactWriter
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 from admm_dolfinx.studies.baselines import solve_snes_vi
 
 MATERIAL = LinearElastic(E=100.0, nu=0.3)

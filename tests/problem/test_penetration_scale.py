@@ -17,7 +17,7 @@ from dolfinx import fem, mesh
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver, ContactProblem, Obstacle, Plane
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 
 pytestmark = pytest.mark.timeout(300)
 COMM = MPI.COMM_WORLD

@@ -16,13 +16,13 @@ from dolfinx import fem, mesh
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSolver, Ball, ContactProblem
-from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.problem.resolution import (
     half_width_from_separation,
     patch_mean,
     separation_ratio,
 )
 from admm_dolfinx.scenes import library
+from admm_dolfinx.scenes.material import LinearElastic
 
 pytestmark = pytest.mark.timeout(300)
 COMM = MPI.COMM_WORLD

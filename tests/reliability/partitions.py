@@ -21,7 +21,7 @@ from dolfinx import fem, graph, mesh
 from mpi4py import MPI
 
 from admm_dolfinx import ContactProblem, Obstacle, Plane
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 
 PARTITIONS = ("default", "no_contact_on_rank0", "no_cells_on_last", "contact_on_one_rank")
 CELLS = {2: ("triangle", "quadrilateral"), 3: ("tetrahedron", "hexahedron")}

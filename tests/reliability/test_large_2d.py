@@ -17,7 +17,7 @@ from mpi4py import MPI
 from admm_dolfinx import ADMMSolver
 from admm_dolfinx.admm.polish_dense import ActiveSetPolish
 from admm_dolfinx.admm.polish_sparse import SparsePolish
-from admm_dolfinx.linalg import condensed
+from admm_dolfinx.operators import condensed
 from admm_dolfinx.scenes.hard_cases import strip
 from admm_dolfinx.studies.baselines import solve_snes_vi
 

@@ -18,8 +18,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver, Plane
-from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.scenes.library import example1, example3
+from admm_dolfinx.scenes.material import LinearElastic
 
 from conftest import problem_from
 

@@ -15,8 +15,8 @@ from dolfinx import fem, mesh
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver, ContactProblem, Plane
-from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.scenes.library import example1
+from admm_dolfinx.scenes.material import LinearElastic
 
 from independent import assert_honest, residuals
 from partitions import pressed_box

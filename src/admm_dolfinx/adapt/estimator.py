@@ -180,7 +180,8 @@ def edge_indicators(
     residual = ufl.replace(problem._L_ufl, {load_test: v2}) - ufl.replace(
         ufl.action(problem._a_ufl, result.u), {test: v2}
     )
-    ds_c = ufl.Measure("ds", domain=msh, subdomain_data=problem.facet_tags)(problem.contact_marker)
+    # ds(Γ_C) with the default quadrature (the contact set's own is the vertex rule)
+    ds_c = problem.contact.measure.reconstruct(metadata={})
     contact = result.pressure * ufl.dot(problem.contact.normal, v2) * ds_c
     r = _assembled(fem.form(residual - contact)).reshape(-1, gdim)
     bubble = _assembled(fem.form(ufl.dot(ufl.as_vector([1.0] * gdim), v2) * ufl.dx))

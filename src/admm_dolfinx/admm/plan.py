@@ -6,7 +6,7 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
 
 * step 1: a factorisation of A condensed onto Γ_C (2D or a 3D body held by the
   contact alone, one process, where the dense work is cheap:
-  :func:`~admm_dolfinx.linalg.condensed.condensed_factor_applies`), a
+  :func:`~admm_dolfinx.operators.condensed.condensed_factor_applies`), a
   factorisation of A + rK, or conjugate gradients with multigrid (an inexact ADMM).
   In 3D, with ``step1="auto"`` and no solver options, MUMPS's analysis
   (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) decides: multigrid if
@@ -33,10 +33,10 @@ import numpy as np
 from mpi4py import MPI
 
 from admm_dolfinx.admm.settings import ADMMSettings
-from admm_dolfinx.linalg.condensed import condensed_factor_applies
 from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
 from admm_dolfinx.linalg.mumps_schur import CENTRALISED_RHS
 from admm_dolfinx.linalg.petsc import is_factorisation, iterative_options
+from admm_dolfinx.operators.condensed import condensed_factor_applies
 from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL
 from admm_dolfinx.penalty.surface import SURFACE_PENALTY_TOL
 from admm_dolfinx.problem.contact_problem import ContactProblem

@@ -3,7 +3,7 @@
 Given the set 𝒜 of contact nodes that touch, the contact problem is an equality-
 constrained quadratic programme, whose solution is one linear solve away. With the
 dense Schur complement S_C of A onto the contact dofs (what
-:class:`~admm_dolfinx.linalg.condensed.CondensedOperator` computes in 2D, and what the r*
+:class:`~admm_dolfinx.operators.condensed.CondensedOperator` computes in 2D, and what the r*
 estimate uses) that solve reduces to an m × m dense system on Γ_C, and the ADMM
 state (p, λ) it gives is a fixed point of the ADMM map: one more step-1 solve with the
 stored factors returns the displacement.
@@ -52,8 +52,8 @@ import numpy.typing as npt
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import RankLayout, collective_call, from_rank0
 from admm_dolfinx.admm.active_set import ActiveSetWalk
-from admm_dolfinx.linalg.condensed import ContactSupport
 from admm_dolfinx.linalg.mumps_schur import inverse_block
+from admm_dolfinx.operators.condensed import ContactSupport
 from admm_dolfinx.penalty.dense import compliance_matrix
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
@@ -119,7 +119,7 @@ class ActiveSetPolish:
     def from_operator(
         cls, problem: ContactProblem, operator, rounds: int = MAX_ROUNDS
     ) -> ActiveSetPolish:
-        """From a :class:`~admm_dolfinx.linalg.condensed.CondensedOperator`.
+        """From a :class:`~admm_dolfinx.operators.condensed.CondensedOperator`.
 
         The arrays outlive the operator.
         """
@@ -138,7 +138,7 @@ class ActiveSetPolish:
 
         Args:
             problem: The contact problem.
-            operator: Step 1's :class:`~admm_dolfinx.linalg.operators.PenalisedOperator`
+            operator: Step 1's :class:`~admm_dolfinx.operators.penalised.PenalisedOperator`
                 (its :meth:`set_penalty` is called before this polisher's; under MPI
                 factorised with
                 :data:`~admm_dolfinx.linalg.mumps_schur.CENTRALISED_RHS`).

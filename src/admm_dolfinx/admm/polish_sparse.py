@@ -208,7 +208,7 @@ class SparsePolish:
         x_g, rhs, x, work = (problem.create_vector() for _ in range(4))
         try:
             x_g.set(0.0)
-            fixed_part = self._dirichlet_normal()[active]
+            fixed_part = problem.prescribed_normal_displacement()[active]
             target = c.gap[active] - fixed_part
             nodal.scatter(target, x_g, 1.0 / np.einsum("ij,ij->i", ntilde, ntilde))
             problem.A.mult(x_g, work)
@@ -228,18 +228,3 @@ class SparsePolish:
             for vec in (x_g, rhs, x, work):
                 vec.destroy()
         return nu, np.where(active, lam, 0.0)
-
-    def _dirichlet_normal(self) -> npt.NDArray[np.float64]:
-        """(n_j − ñ_j) · u_D,j: the part of N u that Dirichlet conditions prescribe."""
-        from dolfinx.fem import petsc as fem_petsc
-
-        problem, c = self.problem, self.problem.contact
-        bs = problem.V.dofmap.index_map_bs
-        values = problem.create_vector()
-        try:
-            values.set(0.0)
-            fem_petsc.set_bc(values, problem.bcs)
-            u_d = values.array_r.reshape(-1, bs)[c.nodes, : problem.gdim]
-            return np.einsum("ij,ij->i", u_d, c.normals - c.free_normals)
-        finally:
-            values.destroy()

@@ -141,7 +141,7 @@ class ADMMSettings:
             along Γ_C, λ_max by multigrid LOBPCG: no factorisation of the body),
             ``"factorised"`` (both ends from factorisations of the body: exact to
             ``penalty_tol``, the same on any partition), or ``"auto"``: dense where the
-            condensed factorisation is cheap (:mod:`admm_dolfinx.linalg.condensed`),
+            condensed factorisation is cheap (:mod:`admm_dolfinx.operators.condensed`),
             local otherwise.
         penalty_tol: Eigenvalue tolerance of the iterative r* methods, in (0, 1), or
             None: :data:`~admm_dolfinx.penalty.estimate.DEFAULT_PENALTY_TOL` for the

@@ -31,7 +31,7 @@ proposed like an Anderson step, and the next step-1 solve expands it to the
 displacement, so a polished solve ends as soon as ADMM has found the contact set.
 
 In 3D the default measures the penalty in the *surface metric* r(M + βL_Γ) instead
-of r M (``penalty_metric``; :mod:`admm_dolfinx.linalg.surface_metric`): step 1 factorises
+of r M (``penalty_metric``; :mod:`admm_dolfinx.operators.surface_metric`): step 1 factorises
 A + rNᵀ(M + βL_Γ)N and steps 2–3 become a small QP on Γ_C, solved exactly (distributed).
 The pencil that sets ADMM's rate is then well conditioned on every mesh, so the
 iteration count no longer grows under refinement.
@@ -94,9 +94,9 @@ from admm_dolfinx.admm.result import (
 )
 from admm_dolfinx.admm.settings import ADMMSettings, check_penalty
 from admm_dolfinx.admm.step2 import MassMetricStep, SurfaceMetricStep
-from admm_dolfinx.linalg.condensed import CondensedOperator
-from admm_dolfinx.linalg.operators import IterativeOperator, PenalisedOperator
-from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.operators.condensed import CondensedOperator
+from admm_dolfinx.operators.penalised import IterativeOperator, PenalisedOperator
+from admm_dolfinx.operators.surface_metric import SurfaceMetric
 from admm_dolfinx.penalty.estimate import PenaltyEstimate, estimate_penalty
 from admm_dolfinx.penalty.surface import (
     LAMBDA_MIN_RINGS,

@@ -17,7 +17,7 @@ import numpy.typing as npt
 from petsc4py import PETSc
 
 from admm_dolfinx.admm.surface_projection import SurfaceProjection
-from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.operators.surface_metric import SurfaceMetric
 
 __all__ = ["MassMetricStep", "SurfaceMetricStep"]
 

@@ -1,6 +1,6 @@
 """Steps 2–3 of ADMM in the surface metric R = r(M + βL_Γ): a QP on Γ_C, distributed.
 
-In the metric R (:mod:`admm_dolfinx.linalg.surface_metric`) ADMM's steps read
+In the metric R (:mod:`admm_dolfinx.operators.surface_metric`) ADMM's steps read
 
     (A + NᵀR N) u = f + Nᵀ (R p − M λ)                      step 1 (stored factors)
     p⁺ = argmin_{p ≤ g} ½ (p − q)ᵀ R (p − q),  R q = R ξ + M λ   step 2: a QP on Γ_C
@@ -31,7 +31,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx.linalg.petsc import PetscOwner, apply_options, describe_petsc_error
-from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.operators.surface_metric import SurfaceMetric
 
 __all__ = ["MAX_ACTIVE_SET_ROUNDS", "SurfaceProjection"]
 

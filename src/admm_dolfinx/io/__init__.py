@@ -1,1 +1,1 @@
-"""Output: files written whole or not at all, figures, and a solved scene's report."""
+"""Output: files written whole or not at all, the VTX writer and figures."""

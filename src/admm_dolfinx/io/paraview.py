@@ -95,7 +95,7 @@ class ContactWriter:
         path: The ``.bp`` folder to write, in an existing folder. An existing one is
             replaced only if an earlier ContactWriter wrote it.
         von_mises: Optional ``u ↦`` von Mises stress as a scalar UFL expression (e.g.
-            :meth:`admm_dolfinx.problem.material.LinearElastic.von_mises`).
+            :meth:`admm_dolfinx.scenes.material.LinearElastic.von_mises`).
 
     Raises:
         ValueError: If ``path`` does not end in ``.bp``.

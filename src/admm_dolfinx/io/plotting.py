@@ -18,7 +18,7 @@ from mpi4py import MPI
 
 from admm_dolfinx._mpi import gather_concat, gather_objects
 from admm_dolfinx.io.output import atomic_path, rank0_write
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.scenes.material import LinearElastic
 
 
 def _prefer_egl() -> None:

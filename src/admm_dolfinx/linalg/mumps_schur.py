@@ -2,7 +2,7 @@
 
 The functions are resolved with ctypes in the PETSc library that petsc4py itself is
 linked to (``dlsym`` on petsc4py's extension module searches its dependencies), so
-they act on the same objects as petsc4py. Used by :mod:`admm_dolfinx.linalg.condensed`, and
+they act on the same objects as petsc4py. Used by :mod:`admm_dolfinx.operators.condensed`, and
 (selected entries of the inverse) by :mod:`admm_dolfinx.admm.polish_dense`.
 """
 

@@ -70,7 +70,7 @@ def iterative_options(options: Mapping[str, Any] | None) -> dict[str, Any]:
 #: MUMPS's own choice (METIS) on every 2D mesh of ``python benchmarks/orderings.py``,
 #: at the same substitution time; in 3D METIS stays.
 #: A factorisation with a Schur complement cannot use AMF: the condensed one
-#: (:mod:`admm_dolfinx.linalg.condensed`) asks for AMD, or METIS on large meshes.
+#: (:mod:`admm_dolfinx.operators.condensed`) asks for AMD, or METIS on large meshes.
 ORDERING_2D: dict[str, Any] = {"mat_mumps_icntl_7": 2}
 
 _counter = itertools.count()

@@ -1,7 +1,7 @@
 """The contact pencil read off the condensed stiffness S_C: compliance and r*, densely.
 
 With the dense Schur complement S_C of A onto the contact dofs C
-(:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`) and W = Nᵀ M^{½} on C, the
+(:class:`~admm_dolfinx.operators.condensed.CondensedOperator`) and W = Nᵀ M^{½} on C, the
 m × m compliance of Γ_C at penalty r is
 
     T(r) = Wᵀ (S_C + r K_CC)⁻¹ W = M^{½} N (A + rK)⁻¹ Nᵀ M^{½},
@@ -39,8 +39,8 @@ from slepc4py import SLEPc
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx._mpi import OnRank0, RankLayout
-from admm_dolfinx.linalg.condensed import CondensedOperator
 from admm_dolfinx.linalg.petsc import apply_options
+from admm_dolfinx.operators.condensed import CondensedOperator
 
 __all__ = [
     "LAPACK_LIMIT",

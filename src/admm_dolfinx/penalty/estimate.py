@@ -11,7 +11,7 @@ is the one entry point; the method is an explicit choice (``method``):
 * ``"dense"`` (the default in 2D, and for a 3D body that the contact alone holds,
   where the condensed factorisation is cheap): one
   factorisation of A condensed onto the contact dofs
-  (:class:`~admm_dolfinx.linalg.condensed.CondensedOperator`) gives the dense Schur
+  (:class:`~admm_dolfinx.operators.condensed.CondensedOperator`) gives the dense Schur
   complement S_C, from which the whole pencil follows
   (:func:`~admm_dolfinx.penalty.dense.extremes_from_schur`). Exact; the same on any
   number of processes to round-off; the ADMM then solves with the same factorisation.
@@ -48,9 +48,9 @@ from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger, speaking_for
 from admm_dolfinx._mpi import check_same_on_every_rank, raise_collectively
-from admm_dolfinx.linalg.condensed import CondensedOperator, condensed_factor_applies
 from admm_dolfinx.linalg.contact_space import ContactSpace
-from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.operators.condensed import CondensedOperator, condensed_factor_applies
+from admm_dolfinx.operators.penalised import PenalisedOperator
 from admm_dolfinx.penalty.dense import dense_extremes
 from admm_dolfinx.penalty.lambda_max import (
     NeedsFactorisation,
@@ -140,7 +140,7 @@ def estimate_penalty(
         max_it: Maximum Krylov–Schur restarts.
         method: ``"dense"``, ``"local"``, ``"factorised"`` (see the module docstring)
             or ``"auto"``: dense where the condensed factorisation is cheap
-            (:func:`~admm_dolfinx.linalg.condensed.condensed_factor_applies`), local
+            (:func:`~admm_dolfinx.operators.condensed.condensed_factor_applies`), local
             otherwise.
         operator: The ADMM's operator, to share factorisations: a
             :class:`CondensedOperator` (dense method; nothing is factorised here), or
@@ -150,7 +150,7 @@ def estimate_penalty(
         petsc_options_prefix: Prefix (default ``"penalty_"``); sub-objects get
             ``schur_``, ``dense_``, ``layer_``, ``lmin_``, ``lmax_``, ``lmax_amg_``.
         multigrid: A multigrid preconditioner of A set up already (the iterative
-            step 1's, :meth:`~admm_dolfinx.linalg.operators.IterativeOperator.set_up_hierarchy`)
+            step 1's, :meth:`~admm_dolfinx.operators.penalised.IterativeOperator.set_up_hierarchy`)
             for the local method's λ_max, borrowed; it builds its own otherwise.
         lambda_min_tol: The local method's tolerance on λ_min's layer truncation (two
             successive layers agree to it), in (0, 1); default ``min(2 tol, 0.5)``,

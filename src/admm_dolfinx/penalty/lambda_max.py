@@ -149,7 +149,7 @@ def lambda_max_factorised(
     """λ_max from Krylov–Schur on M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½} (eigenvalues θ); collective.
 
     One numeric factorisation of A + r_a NᵀMN (per r_a tried) in the shared operator
-    (a :class:`~admm_dolfinx.linalg.operators.PenalisedOperator`), one substitution
+    (a :class:`~admm_dolfinx.operators.penalised.PenalisedOperator`), one substitution
     per application. The eigensolver reads options under ``{prefix}lmax_``.
     """
     solves_before = operator.solves

@@ -29,8 +29,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from dolfinx import fem, la
-from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx.linalg.contact_space import ContactSpace, NodalMap, projected_stiffness
@@ -40,13 +38,12 @@ from admm_dolfinx.linalg.petsc import (
     prepare_eigensolve,
     top_eigenpair,
 )
+from admm_dolfinx.problem.contact_layer import contact_layer, layer_index_set
 
 __all__ = [
     "SchurOperator",
-    "contact_layer",
     "lambda_min_exact",
     "lambda_min_from_layers",
-    "layer_index_set",
 ]
 
 
@@ -111,54 +108,6 @@ class _LayerSolver:
     def destroy(self):
         """Free the KSP."""
         self.ksp.destroy()
-
-
-def contact_layer(problem: Any, layers: int) -> tuple[np.ndarray, bool]:
-    """Owned nodes within ``layers`` rings of cells of the contact nodes; collective.
-
-    Args:
-        problem: The contact problem.
-        layers: Number of rings of cells around the contact nodes (0: the contact
-            nodes alone).
-
-    Returns:
-        The sorted local node indices, and whether the layer is the whole mesh.
-    """
-    Q = problem.contact.Q
-    marker = fem.Function(Q)
-    marker.x.array[:] = 0.0
-    marker.x.array[problem.contact.dofs] = 1.0
-    marker.x.scatter_forward()
-    cell_dofs = Q.dofmap.list
-    for _ in range(layers):
-        touched = marker.x.array[cell_dofs].max(axis=1) > 0.0
-        grown = np.zeros_like(marker.x.array)
-        grown[cell_dofs[touched].ravel()] = 1.0
-        marker.x.array[:] = grown
-        marker.x.scatter_reverse(la.InsertMode.add)
-        marker.x.array[:] = np.minimum(marker.x.array, 1.0)
-        marker.x.scatter_forward()
-    n_owned = Q.dofmap.index_map.size_local
-    owned = np.flatnonzero(marker.x.array[:n_owned] > 0.0)
-    total = problem.comm.allreduce(owned.size, op=MPI.SUM)
-    nodes = np.sort(problem.contact.q_to_node[owned])
-    return nodes.astype(np.int32), total == Q.dofmap.index_map.size_global
-
-
-def layer_index_set(problem: Any, nodes: np.ndarray) -> PETSc.IS:
-    """The global dofs of a layer's nodes (:func:`contact_layer`), all bs per node.
-
-    Args:
-        problem: The contact problem.
-        nodes: Owned local node indices.
-
-    Returns:
-        A distributed index set of A's rows (the caller destroys it).
-    """
-    bs = problem.V.dofmap.index_map_bs
-    row0 = problem.A.getOwnershipRange()[0]
-    dofs = (row0 + nodes[:, None] * bs + np.arange(bs)[None, :]).ravel()
-    return PETSc.IS().createGeneral(dofs.astype(PETSc.IntType), comm=problem.comm)
 
 
 def _top_of_schur(space, schur, prefix, tol, max_it, start) -> tuple[float, PETSc.Vec, int]:
@@ -284,7 +233,7 @@ def lambda_min_exact(
 
     Args:
         space: The contact space.
-        operator: A :class:`~admm_dolfinx.linalg.operators.PenalisedOperator`; the
+        operator: A :class:`~admm_dolfinx.operators.penalised.PenalisedOperator`; the
             projected stiffness of the whole body is factorised in it (numerically:
             its symbolic analysis is shared with the ADMM's step 1).
         tol: Eigenvalue tolerance.

@@ -1,4 +1,4 @@
-"""β and r for the surface metric R = r (M + β L_Γ) (:mod:`admm_dolfinx.linalg.surface_metric`).
+"""β and r for the surface metric R = r (M + β L_Γ) (:mod:`admm_dolfinx.operators.surface_metric`).
 
 The paper's rule r* = 1/sqrt(λ_min λ_max) applies to any metric: with μ_min, μ_max
 the extreme eigenvalues of the pencil (Nᵀ(M + βL_Γ)N, A), the best r of the plain
@@ -56,9 +56,9 @@ from admm_dolfinx.linalg.petsc import (
     prepare_eigensolve,
     top_eigenpair,
 )
-from admm_dolfinx.linalg.surface_metric import SurfaceMetric
+from admm_dolfinx.operators.surface_metric import SurfaceMetric
 from admm_dolfinx.penalty.estimate import PenaltyEstimate
-from admm_dolfinx.penalty.lambda_min import contact_layer, layer_index_set
+from admm_dolfinx.problem.contact_layer import contact_layer, layer_index_set
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = [

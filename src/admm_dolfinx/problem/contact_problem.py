@@ -42,7 +42,6 @@ from admm_dolfinx.problem.contact_set import (
     build_contact_set,
     check_contact_facets,
     compute_gap,
-    contact_measure,
     dirichlet_fixed,
     mesh_bounds,
 )
@@ -289,11 +288,11 @@ class ContactProblem(PetscOwner):
 
     def _assemble_operators(self, a, L, form_compiler_options, jit_options) -> None:
         """A, K = NᵀMN and the load, each checked; collective."""
-        V, bcs, msh = self.V, self.bcs, self.mesh
+        V, bcs = self.V, self.bcs
         opts = {"form_compiler_options": form_compiler_options, "jit_options": jit_options}
         u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
         n_h = self.contact.normal
-        ds_c = contact_measure(msh, self.facet_tags, self.contact_marker)
+        ds_c = self.contact.measure
         self._a = fem.form(a, **opts)
         self._a_ufl, self._a_data = a, _form_data(a)
         self._k = fem.form(ufl.inner(ufl.dot(u, n_h), ufl.dot(v, n_h)) * ds_c, **opts)
@@ -556,6 +555,26 @@ class ContactProblem(PetscOwner):
         c = self.contact
         values = u.array_r.reshape(-1, self.V.dofmap.index_map_bs)[c.nodes, : self.gdim]
         return np.einsum("ij,ij->i", values, c.normals)
+
+    def prescribed_normal_displacement(self) -> npt.NDArray[np.float64]:
+        """The part of ``(N u)_j`` that Dirichlet conditions prescribe; collective.
+
+        ``(n_j − ñ_j) · u_D,j`` at the owned contact nodes, with ñ_j the free part of
+        n_j and u_D the current Dirichlet values: zero unless a condition fixes a
+        component of a contact node's normal.
+
+        Returns:
+            Array of shape (m_loc,).
+        """
+        c = self.contact
+        values = self.create_vector()
+        try:
+            values.set(0.0)
+            fem_petsc.set_bc(values, self.bcs)
+            u_d = values.array_r.reshape(-1, self.V.dofmap.index_map_bs)[c.nodes, : self.gdim]
+            return np.einsum("ij,ij->i", u_d, c.normals - c.free_normals)
+        finally:
+            values.destroy()
 
     def add_normal_force(self, b: PETSc.Vec, q: npt.NDArray[np.float64]) -> None:
         """Add ``Nᵀ M q`` to ``b`` on the free dofs (Dirichlet rows untouched).

@@ -36,7 +36,6 @@ __all__ = [
     "ExcludedNodes",
     "build_contact_set",
     "compute_gap",
-    "contact_measure",
     "dirichlet_fixed",
     "evaluate_obstacle",
     "mesh_bounds",
@@ -87,7 +86,7 @@ def marked_facets(facet_tags: mesh.MeshTags, marker: Marker) -> npt.NDArray[np.i
     return np.unique(np.concatenate(found)).astype(np.int32)
 
 
-def contact_measure(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -> ufl.Measure:
+def _contact_measure(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -> ufl.Measure:
     """Return the vertex-rule exterior facet measure restricted to ``marker``.
 
     Args:
@@ -156,6 +155,9 @@ class ContactSet:
             coordinates: the start of the eigenvalue solves, the same on every partition.
         excluded: The owned nodes of Γ_C that are not contact nodes (their normal
             displacement is prescribed), with their gap.
+        measure: ``ds(Γ_C)`` with the vertex quadrature rule, the one measure of every
+            form on Γ_C (NᵀMN, the nodal normals and masses, the surface metric); for
+            a quadrature of its own, ``measure.reconstruct(metadata={...})``.
     """
 
     Q: fem.FunctionSpace
@@ -174,6 +176,7 @@ class ContactSet:
     q_to_node: npt.NDArray[np.int64]
     probe: npt.NDArray[np.float64]
     excluded: ExcludedNodes
+    measure: ufl.Measure
 
 
 def check_contact_facets(msh: mesh.Mesh, facet_tags: mesh.MeshTags, marker: Marker) -> int:
@@ -284,7 +287,7 @@ def build_contact_set(
     msh = V.mesh
     gdim = msh.geometry.dim
     bs = V.dofmap.index_map_bs
-    ds_c = contact_measure(msh, facet_tags, marker)
+    ds_c = _contact_measure(msh, facet_tags, marker)
 
     # Area-weighted nodal normal: vertex rule gives Σ_F |F|/n_v · n_F at each node.
     v = ufl.TestFunction(V)
@@ -359,6 +362,7 @@ def build_contact_set(
             normals=all_directions[~keep],
             gap=all_gap[~keep],
         ),
+        measure=ds_c,
     )
 
 

@@ -20,9 +20,9 @@ from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
 from admm_dolfinx._mpi import run_on_rank0
-from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.problem.obstacles import Obstacle
 from admm_dolfinx.scenes.library import Scene
+from admm_dolfinx.scenes.material import LinearElastic
 from admm_dolfinx.scenes.meshing import gmsh_session, mesh_and_facet_tags
 
 __all__ = ["scene_from_file"]

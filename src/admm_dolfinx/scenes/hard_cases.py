@@ -19,10 +19,10 @@ import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 
-from admm_dolfinx.problem.material import LinearElastic
+from admm_dolfinx.problem.contact_set import mesh_bounds
 from admm_dolfinx.problem.obstacles import Obstacle, Plane
 from admm_dolfinx.scenes.library import Scene, example1, example2, example3
-from admm_dolfinx.scenes.meshing import global_bounds
+from admm_dolfinx.scenes.material import LinearElastic
 
 __all__ = ["CASES", "build_case", "distort", "grade", "strip"]
 
@@ -105,7 +105,7 @@ def distort(scene: Scene, amount: float = 0.35) -> Scene:
     copies of a node move alike on every process. Boundary nodes stay put.
     """
     x = scene.mesh.geometry.x
-    lo, hi = global_bounds(scene.mesh)[:, :2]
+    lo, hi = mesh_bounds(scene.mesh)[:, :2]
     interior = np.all((x[:, :2] > lo + 1e-12) & (x[:, :2] < hi - 1e-12), axis=1)
     phase = x[:, 0] * 12.9898 + x[:, 1] * 78.233
     angle = 2 * np.pi * ((np.sin(phase) * 43758.5453) % 1.0)

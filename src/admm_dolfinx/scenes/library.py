@@ -18,8 +18,8 @@ from dolfinx.mesh import CellType, Mesh, MeshTags, create_box
 from mpi4py import MPI
 
 from admm_dolfinx.problem.contact_problem import ContactProblem
-from admm_dolfinx.problem.material import LinearElastic
 from admm_dolfinx.problem.obstacles import Ball, Obstacle, Plane
+from admm_dolfinx.scenes.material import LinearElastic
 from admm_dolfinx.scenes.meshing import (
     box,
     check_lengths,

@@ -18,7 +18,6 @@ from dolfinx.io import gmsh as gmshio
 from mpi4py import MPI
 
 from admm_dolfinx._mpi import run_on_rank0
-from admm_dolfinx.problem.contact_set import mesh_bounds as global_bounds
 
 __all__ = [
     "MeshData",
@@ -26,7 +25,6 @@ __all__ = [
     "build_on_root",
     "check_lengths",
     "check_level",
-    "global_bounds",
     "gmsh_session",
     "lower_ball",
     "mesh_and_facet_tags",

@@ -1,1 +1,1 @@
-"""Studies around the solver: penalty sweeps, reference solvers, the paper's tables, Hertz."""
+"""Studies around the solver: sweeps, reference solvers, the paper's tables, a scene's report."""

@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from admm_dolfinx.admm.solver import ADMMConvergenceError, ADMMSolver
-from admm_dolfinx.linalg.condensed import condensed_factor_applies
+from admm_dolfinx.operators.condensed import condensed_factor_applies
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["PenaltySweep", "paper_penalty_grid", "sample_penalty"]

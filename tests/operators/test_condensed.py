@@ -11,8 +11,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx import ADMMSolver
-from admm_dolfinx.linalg.condensed import CondensedOperator
-from admm_dolfinx.linalg.operators import PenalisedOperator
+from admm_dolfinx.operators.condensed import CondensedOperator
+from admm_dolfinx.operators.penalised import PenalisedOperator
 from admm_dolfinx.scenes.library import example1, example2, example3
 from admm_dolfinx.studies.sweep import sample_penalty
 
@@ -138,7 +138,7 @@ def test_condensed_needs_mumps_and_one_process():
 
 def test_large_contact_sets_fall_back_to_the_iterative_method(monkeypatch):
     """Above MAX_CONDENSED_CONTACT_NODES the automatic choices avoid the dense S_C."""
-    import admm_dolfinx.linalg.condensed as condensed
+    import admm_dolfinx.operators.condensed as condensed
 
     problem = example1(h=1 / 16).problem()  # m = 32
     monkeypatch.setattr(condensed, "MAX_CONDENSED_CONTACT_NODES", 31)
@@ -158,7 +158,7 @@ def test_the_ordering_is_metis_on_large_meshes_unless_given(
     monkeypatch, threshold, given, expected
 ):
     """MUMPS runs the ordering asked for (INFOG(7)), and the solves stay exact under it."""
-    import admm_dolfinx.linalg.condensed as condensed
+    import admm_dolfinx.operators.condensed as condensed
 
     if threshold is not None:
         monkeypatch.setattr(condensed, "CONDENSED_METIS_DOFS", threshold)

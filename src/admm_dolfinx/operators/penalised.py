@@ -90,7 +90,7 @@ class PenalisedOperator(FactorisedOperator):
 
         Args:
             matrix: Symmetric positive semi-definite, its pattern within A's (e.g.
-                Nᵀ(M + βL_Γ)N of :mod:`admm_dolfinx.linalg.surface_metric`); the operator
+                Nᵀ(M + βL_Γ)N of :mod:`admm_dolfinx.operators.surface_metric`); the operator
                 takes ownership.
             name: What it is, for labels (``"Nᵀ(M + βL_Γ)N"``).
         """

@@ -21,7 +21,6 @@ from admm_dolfinx.admm.solver import ADMMResult
 from admm_dolfinx.io.output import output_folder, write_json, write_xdmf
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.scenes.library import Scene
-from admm_dolfinx.scenes.meshing import global_bounds
 from admm_dolfinx.studies.sweep import PenaltySweep
 
 __all__ = ["result_summary", "write_scene_outputs"]
@@ -109,7 +108,7 @@ def write_scene_outputs(
         plot_iterations_vs_penalty,
     )
 
-    bounds = global_bounds(problem.mesh)  # collective: every rank calls it
+    bounds = problem.bounds
     obstacle = obstacle_surface(scene.obstacle, bounds) if comm.rank == 0 else None
     with output_folder(comm, folder) as tmp:
         write_xdmf(tmp / "solution.xdmf", [result.u, result.pressure])

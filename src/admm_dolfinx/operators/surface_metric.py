@@ -35,7 +35,6 @@ from slepc4py import SLEPc
 from admm_dolfinx._mpi import RankLayout, gather_csr
 from admm_dolfinx.linalg.petsc import PetscOwner
 from admm_dolfinx.problem.contact_problem import ContactProblem
-from admm_dolfinx.problem.contact_set import contact_measure
 
 __all__ = ["SurfaceMetric", "surface_gradient"]
 
@@ -85,7 +84,7 @@ class SurfaceMetric(PetscOwner):
         msh = Q.mesh
         w, v = ufl.TrialFunction(Q), ufl.TestFunction(Q)
         n = ufl.FacetNormal(msh)
-        ds_c = contact_measure(msh, problem.facet_tags, problem.contact_marker)
+        ds_c = c.measure
         form = fem.form(ufl.inner(surface_gradient(w, n), surface_gradient(v, n)) * ds_c)
         #: L_Γ on the scalar space Q (rows of nodes off Γ_C are zero).
         self.surface_stiffness = fem_petsc.assemble_matrix(form)
@@ -214,22 +213,15 @@ class SurfaceMetric(PetscOwner):
         """Set ``out`` = −P_Nᵀ L_Γ d_D, the lifting of β Nᵀ L_Γ N by the Dirichlet values.
 
         d_D,j = (n_j − ñ_j) · u_D,j is the part of the normal displacement of contact
-        node j that Dirichlet conditions prescribe (zero unless a condition fixes a
-        component of a contact node's normal). Collective.
+        node j that Dirichlet conditions prescribe
+        (:meth:`~admm_dolfinx.problem.ContactProblem.prescribed_normal_displacement`).
+        Collective.
 
         Returns:
             Whether the lifting is non-zero anywhere (else ``out`` is left untouched).
         """
         problem, c = self.problem, self.problem.contact
-        bs = problem.V.dofmap.index_map_bs
-        values = problem.create_vector()
-        try:
-            values.set(0.0)
-            fem_petsc.set_bc(values, problem.bcs)
-            u_d = values.array_r.reshape(-1, bs)[c.nodes, : problem.gdim]
-            d = np.einsum("ij,ij->i", u_d, c.normals - c.free_normals)
-        finally:
-            values.destroy()
+        d = problem.prescribed_normal_displacement()
         if not problem.comm.allreduce(bool(np.any(d != 0.0)), op=MPI.LOR):
             return False
         d_q, l_d = self.surface_stiffness.createVecs()

@@ -51,7 +51,6 @@ from admm_dolfinx.linalg.mumps_schur import (
     full_symmetric,
     set_schur_indices,
 )
-from admm_dolfinx.linalg.operators import FactorisedOperator
 from admm_dolfinx.linalg.petsc import (
     check_solve,
     describe_factor_failure,
@@ -60,6 +59,7 @@ from admm_dolfinx.linalg.petsc import (
     is_factorisation,
     prefixed_options,
 )
+from admm_dolfinx.operators.penalised import FactorisedOperator
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = [
@@ -185,7 +185,7 @@ class ContactSupport:
 class CondensedOperator(FactorisedOperator):
     """A factorised once, with its dense Schur complement onto C; A + rK by dense updates.
 
-    The interface of :class:`~admm_dolfinx.linalg.operators.PenalisedOperator` (``set_penalty``,
+    The interface of :class:`~admm_dolfinx.operators.penalised.PenalisedOperator` (``set_penalty``,
     ``solve``, ``penalty``, ``solves``, ``timings``, ``ksp``, ``destroy``).
 
     Args:
