@@ -58,8 +58,7 @@ def test_demo_runs(script, arguments, nproc, tmp_path):
     except subprocess.TimeoutExpired:
         pytest.fail(f"{' '.join(command)} did not finish within {TIMEOUT} s")
     report = (
-        f"--- stdout (end) ---\n{run.stdout[-4000:]}\n"
-        f"--- stderr (end) ---\n{run.stderr[-4000:]}"
+        f"--- stdout (end) ---\n{run.stdout[-4000:]}\n--- stderr (end) ---\n{run.stderr[-4000:]}"
     )
     assert run.returncode == 0, f"{' '.join(command)} exited {run.returncode}\n{report}"
     solves = [line.strip() for line in run.stdout.splitlines() if line.strip().startswith("ADMM ")]

@@ -882,14 +882,14 @@ CONSTANTS: list[tuple[str, str, str, str, dict[str, str] | None]] = [
     (
         "validation.md",
         "once it needs 300 iterations or more",
-        "src/admm_dolfinx/admm/solver.py",
+        "src/admm_dolfinx/admm/messages.py",
         r"^SLOW_ITERATIONS = (\d+)$",
         None,
     ),
     (
         "acceleration.md",
         "A solve that needs 300 iterations or more says so",
-        "src/admm_dolfinx/admm/solver.py",
+        "src/admm_dolfinx/admm/messages.py",
         r"^SLOW_ITERATIONS = (\d+)$",
         None,
     ),

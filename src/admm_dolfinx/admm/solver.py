@@ -68,6 +68,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -79,11 +80,13 @@ from petsc4py import PETSc
 from admm_dolfinx._logging import get_logger, progress, speaking_for
 from admm_dolfinx._mpi import agree, collective_call
 from admm_dolfinx._threads import share_cores
-from admm_dolfinx.admm.anderson import AndersonMixer, weighted_norm
+from admm_dolfinx.admm.anderson import AndersonMixer
 from admm_dolfinx.admm.inexact import InexactRule
+from admm_dolfinx.admm.messages import failure_message, slow_convergence_warning
 from admm_dolfinx.admm.plan import SolverPlan, make_plan
 from admm_dolfinx.admm.polish_dense import ActiveSetPolish
 from admm_dolfinx.admm.polish_sparse import SparsePolish
+from admm_dolfinx.admm.residuals import HISTORY_KEYS, IterationResiduals, ResidualMeter
 from admm_dolfinx.admm.result import (
     ADMMConvergenceError,
     ADMMResult,
@@ -107,13 +110,7 @@ from admm_dolfinx.problem.checks import check_finite
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_zone import contact_area, mean_pressure
 from admm_dolfinx.problem.forces import contact_force
-from admm_dolfinx.problem.kkt import (
-    KKTResiduals,
-    _ratio,
-    compute_kkt_residuals,
-    force_balance,
-    gap_residuals,
-)
+from admm_dolfinx.problem.kkt import KKTResiduals, compute_kkt_residuals
 from admm_dolfinx.problem.penetration import obstacle_penetration
 from admm_dolfinx.problem.resolution import assess_resolution
 
@@ -124,25 +121,33 @@ logger = get_logger(__name__)
 #: ``history["accelerated"]`` codes: what the evaluated state was.
 _REJECTED, _PLAIN, _ANDERSON, _POLISHED = -1, 0, 1, 2
 _NOTES = {_PLAIN: "", _ANDERSON: " (Anderson)", _POLISHED: " (polished)"}
-#: A solve that needs this many iterations or more says so in ``result.warning``.
-SLOW_ITERATIONS = 300
 #: Seconds between the progress lines of a long solve (logged at INFO, or shown in a
 #: terminal where logging is not set up: :func:`admm_dolfinx._logging.progress`; every
 #: iteration is logged at DEBUG).
 PROGRESS_SECONDS = 10.0
+
+
+@dataclass(frozen=True)
+class _LoopOutcome:
+    """What the iteration hands to the result."""
+
+    u: fem.Function
+    multiplier: np.ndarray
+    status: str
+    iterations: int
+    history: dict[str, list[float]]
+    kkt: KKTResiduals
+    polished_at: int | None
+    iteration_time: float
+    kkt_time: float
+    #: ``time.perf_counter()`` when the solve started
+    started: float
+    step1: Step1Info | None
+
+
 #: The settings :meth:`ADMMSolver.update_settings` may change between solves: they
 #: change neither r, nor the factorisation, nor the plan.
 ITERATION_SETTINGS = ("rtol", "kkt_tol", "max_iter", "alpha", "anderson", "stopping")
-_HISTORY = (
-    "du",
-    "dp",
-    "fpr",
-    "feasibility",
-    "complementarity",
-    "equilibrium",
-    "force_balance",
-    "active",
-)
 
 
 def _final_residual(result: ADMMResult) -> float | None:
@@ -497,11 +502,6 @@ class ADMMSolver:
         t_start = time.perf_counter()
         s, problem, c = self.settings, self.problem, self.problem.contact
         r, alpha, g, m = self.penalty, s.alpha, c.gap, c.gap.size
-        # |NᵀM e_j| on the free dofs: turns nodal values into the equilibrium residual
-        force = np.linalg.norm(c.free_normals, axis=1) * c.mass
-        # W-norm of z = (p, λ): p weighted by M, λ by M/r² (both in displacement units)
-        weights = np.concatenate([c.mass, c.mass / r**2])
-        mixer = AndersonMixer(s.anderson, weights, problem.comm) if s.anderson else None
         step, polisher, step1 = self._step, self.polisher, self._step1
         # an iterative step 1: the inexact ADMM's inner tolerances, and its work so far
         inexact = None
@@ -513,14 +513,14 @@ class ADMMSolver:
 
         u = fem.Function(problem.V, name="displacement")
         x = u.x.petsc_vec
-        x_old, b0, b = (problem.create_vector() for _ in range(3))
+        u_start, b0, b = (problem.create_vector() for _ in range(3))
         problem.assemble_rhs(r, b0)
         step.reset(g, b0, b, r)
         if warm_start is None:
-            x_old.set(0.0)
+            u_start.set(0.0)
             z = np.concatenate([np.minimum(0.0, g), np.zeros(m)])  # state (p, λ)
         else:
-            z = self._warm_state(warm_start, x_old)
+            z = self._warm_state(warm_start, u_start)
             if inexact is not None:
                 # the first inner solve as tight as the end of that solve: a loose one
                 # would throw a warm start at a fixed point away; after a load step it
@@ -529,8 +529,10 @@ class ADMMSolver:
                     last_residual = _final_residual(warm_start)
         if polisher is not None:
             polisher.reset()
-        p_prev, lam = z[:m].copy(), z[m:]
-        history: dict[str, list[float]] = {key: [] for key in (*_HISTORY, "accelerated")}
+        lam = z[m:]
+        meter = ResidualMeter(problem, r, u_start, z[:m])
+        mixer = AndersonMixer(s.anderson, meter.weights, problem.comm) if s.anderson else None
+        history: dict[str, list[float]] = {key: [] for key in (*HISTORY_KEYS, "accelerated")}
         status, kkt, iterations, polished_at = "max_iter", None, 0, None
         accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
         proposal = _PLAIN  # what z is: a plain step, or an Anderson or polished proposal
@@ -554,19 +556,16 @@ class ADMMSolver:
                     # steps 2-3, with over-relaxation
                     p, lam, d = step(alpha * nu + (1.0 - alpha) * p_in, lam_in, p_in, nu, r)
                     Tz = np.concatenate([p, lam])
-                    residuals = self._residuals(
-                        x, x_old, z, Tz, p, p_prev, nu, lam, d, force, weights
-                    )
-                    last_residual = residuals["fpr"]
-                    p_prev = p
+                    residuals = meter.measure(x, z, Tz, nu, d)
+                    last_residual = residuals.fpr
                     # safeguard: an extrapolated state must lower the fixed-point residual
                     # (written as "not <" so that a NaN residual is rejected too)
-                    res = residuals["res"]
+                    res = residuals.res
                     rejected = proposal != _PLAIN and accepted is not None and not res < accepted[1]
                     if proposal == _POLISHED and not rejected:
                         polished_at = k
                     self._record(history, k, residuals, _REJECTED if rejected else proposal)
-                    if self._test_met(residuals):
+                    if residuals.meets(s.stopping, s.rtol):
                         # the test's residuals rest on identities that assume exact
                         # step-1 solves: confirm them independently before stopping
                         kkt = compute_kkt_residuals(problem, x, lam)
@@ -609,7 +608,8 @@ class ADMMSolver:
                 kkt = compute_kkt_residuals(problem, x, lam)
             t_kkt = time.perf_counter() - t0
         finally:
-            for vec in (x_old, b0, b):
+            meter.destroy()
+            for vec in (u_start, b0, b):
                 vec.destroy()
         step1_info = None
         if inexact is not None:
@@ -623,60 +623,32 @@ class ADMMSolver:
                 time=step1.solve_time - work_before[3],
             )
         result = self._result(
-            u,
-            lam,
-            status,
-            iterations,
-            history,
-            kkt,
-            polished_at,
-            t_iter,
-            t_kkt,
-            t_start,
-            step1_info,
+            _LoopOutcome(
+                u=u,
+                multiplier=lam,
+                status=status,
+                iterations=iterations,
+                history=history,
+                kkt=kkt,
+                polished_at=polished_at,
+                iteration_time=t_iter,
+                kkt_time=t_kkt,
+                started=t_start,
+                step1=step1_info,
+            )
         )
         if result.warning:
             logger.warning("%s", result.warning, extra={"slow_convergence": True})
         if status not in ("converged", "callback"):
-            raise ADMMConvergenceError(self._failure_message(result), result)
+            raise ADMMConvergenceError(failure_message(result), result)
         logger.debug("%s", result.summary())
         return result
 
     # ------------------------------------------------------------ the loop's parts
-    def _residuals(self, x, x_old, z, Tz, p, p_prev, nu, lam, d, force, weights) -> dict:
-        """The residuals of one iteration (and x_old := x); collective."""
-        problem = self.problem
-        res = weighted_norm(Tz - z, weights, problem.comm)
-        fpr = _ratio(res, weighted_norm(Tz, weights, problem.comm))
-        x_old.axpy(-1.0, x)
-        du = _ratio(x_old.norm(), x.norm())
-        x.copy(x_old)
-        dp = _ratio(problem.global_norm(p - p_prev), problem.global_norm(p))
-        feas, comp = gap_residuals(problem, nu, lam)
-        eq = _ratio(
-            problem.global_norm(force * d),
-            max(problem.load_norm, problem.global_norm(force * lam)),
-        )
-        # Σ_free (A u − f + NᵀMλ⁺) = Σ_j M_jj d_j ñ_j: what the forces fail to balance
-        c = problem.contact
-        unbalanced = problem.comm.allreduce(((c.mass * d)[:, None] * c.free_normals).sum(axis=0))
-        balance = force_balance(problem, np.asarray(unbalanced, dtype=np.float64), lam)
-        active = int(problem.comm.allreduce(int(np.count_nonzero(lam > 0.0))))
-        return {
-            "res": res,
-            "fpr": fpr,
-            "du": du,
-            "dp": dp,
-            "feasibility": feas,
-            "complementarity": comp,
-            "equilibrium": eq,
-            "force_balance": balance,
-            "active": active,
-        }
-
-    def _record(self, history: dict, k: int, residuals: dict, what: int) -> None:
-        for key in _HISTORY:
-            history[key].append(residuals[key])
+    def _record(self, history: dict, k: int, residuals: IterationResiduals, what: int) -> None:
+        """Keep one iteration's residuals in the history, and log them."""
+        for key in HISTORY_KEYS:
+            history[key].append(getattr(residuals, key))
         history["accelerated"].append(what)
         # every iteration at DEBUG; at INFO (progress) one line every PROGRESS_SECONDS
         now = time.perf_counter()
@@ -686,12 +658,14 @@ class ADMMSolver:
         line = (
             "ADMM %4d: fpr %.2e feas %.2e comp %.2e eq %.2e bal %.2e du %.2e dp %.2e active %d%s",
             k,
-            *(residuals[key] for key in ("fpr", "feasibility", "complementarity")),
-            residuals["equilibrium"],
-            residuals["force_balance"],
-            residuals["du"],
-            residuals["dp"],
-            residuals["active"],
+            residuals.fpr,
+            residuals.feasibility,
+            residuals.complementarity,
+            residuals.equilibrium,
+            residuals.force_balance,
+            residuals.du,
+            residuals.dp,
+            residuals.active,
             " (proposal rejected)" if what == _REJECTED else _NOTES[what],
         )
         if level == logging.INFO:
@@ -699,28 +673,11 @@ class ADMMSolver:
         else:
             logger.debug(*line)
 
-    def _test_met(self, residuals: dict) -> bool:
-        s = self.settings
-        if s.stopping == "change":
-            return residuals["du"] <= s.rtol and residuals["dp"] <= s.rtol
-        keys = ("fpr", "feasibility", "complementarity", "equilibrium", "force_balance")
-        return max(residuals[key] for key in keys) <= s.rtol
-
-    def _result(
-        self,
-        u,
-        lam,
-        status,
-        iterations,
-        history,
-        kkt,
-        polished_at,
-        t_iter,
-        t_kkt,
-        t_start,
-        step1_info,
-    ):
+    def _result(self, loop: _LoopOutcome) -> ADMMResult:
+        """The typed result of a finished loop, with its outputs and warnings; collective."""
         problem, polisher = self.problem, self.polisher
+        u, lam, history = loop.u, loop.multiplier, loop.history
+        operator = self._step1
         penalty_time = (
             (self.penalty_estimate.time if self.penalty_estimate else 0.0)
             + (self.surface_penalty.time if self.surface_penalty else 0.0)
@@ -729,12 +686,12 @@ class ADMMSolver:
         phases = {
             "assembly": problem.timings.get("assembly", 0.0),
             "penalty": penalty_time,
-            "operator": self.operator.timings["operator"]
+            "operator": operator.timings["operator"]
             + (polisher.setup_time if polisher is not None else 0.0),
-            "factorization": self.operator.timings["factorization"]
-            + self.operator.timings.get("hierarchy", 0.0),
-            "iterations": t_iter,
-            "kkt": t_kkt,
+            "factorization": operator.timings["factorization"]
+            + operator.timings.get("hierarchy", 0.0),
+            "iterations": loop.iteration_time,
+            "kkt": loop.kkt_time,
         }
         phases["total"] = (
             phases["assembly"]
@@ -742,33 +699,33 @@ class ADMMSolver:
             + phases["operator"]
             + phases["factorization"]
             + time.perf_counter()
-            - t_start
+            - loop.started
         )
         polish = None
         if polisher is not None:
             polish = PolishInfo(
                 kind=self.plan.polish,
-                polished_at=polished_at,
+                polished_at=loop.polished_at,
                 attempts=polisher.attempts,
                 rounds=polisher.rounds,
                 skipped=polisher.skipped,
                 time=polisher.time,
             )
-        converged = status == "converged"
+        converged = loop.status == "converged"
         penetration = obstacle_penetration(problem, u.x.array, lam, self.settings.kkt_tol)
         resolution = assess_resolution(problem, u, lam)
-        return ADMMResult(
+        result = ADMMResult(
             u=u,
             pressure=problem.pressure_function(lam),
             converged=converged,
-            status=status,
-            iterations=iterations,
+            status=loop.status,
+            iterations=loop.iterations,
             penalty=self.penalty,
             history=history,
             timings=Timings(**phases),
-            kkt=kkt,
+            kkt=loop.kkt,
             multiplier=lam,
-            num_active=history["active"][-1],
+            num_active=int(history["active"][-1]),
             num_contact_nodes=problem.contact.num_global,
             settings=self.settings,
             plan=self.plan,
@@ -782,22 +739,24 @@ class ADMMSolver:
             surface_penalty=self.surface_penalty,
             polish=polish,
             projection=self._step.statistics(),
-            step1=step1_info,
+            step1=loop.step1,
             obstacle_penetration=penetration,
             resolution=resolution,
-            warning=" ".join(
-                text
-                for text in (
-                    self._slow_convergence_warning(history, converged),
-                    penetration.message() if penetration is not None else "",
-                    resolution.message(),
-                )
-                if text
-            ),
+            warning="",
         )
+        result.warning = " ".join(
+            text
+            for text in (
+                slow_convergence_warning(result),
+                penetration.message() if penetration is not None else "",
+                resolution.message(),
+            )
+            if text
+        )
+        return result
 
     # ------------------------------------------------------------------ verdicts
-    def _verdict(self, kkt: KKTResiduals, loop: dict) -> str:
+    def _verdict(self, kkt: KKTResiduals, loop: IterationResiduals) -> str:
         """What a met stopping test means, given the KKT residuals recomputed from (u, λ).
 
         Args:
@@ -817,8 +776,8 @@ class ADMMSolver:
             # the loop met the test, so with exact solves the recomputed residuals
             # would too: what is left is the step-1 error
             return "inexact_step1"
-        if kkt.equilibrium > 10.0 * max(tol, loop["equilibrium"]) or (
-            kkt.force_balance > 10.0 * max(tol, loop["force_balance"])
+        if kkt.equilibrium > 10.0 * max(tol, loop.equilibrium) or (
+            kkt.force_balance > 10.0 * max(tol, loop.force_balance)
         ):
             return "inexact_step1"
         return "inaccurate" if self.settings.stopping == "change" else "continue"
@@ -830,89 +789,6 @@ class ADMMSolver:
         if stop and not unanimous:
             logger.warning("ADMM: the callback asked to stop on some ranks only; stopping.")
         return stop
-
-    def _failure_message(self, result: ADMMResult) -> str:
-        """Why a solve did not converge, and what to do about it."""
-        k, h, r = result.kkt, result.history, self.penalty
-        residuals = (
-            f"KKT residuals recomputed from (u, λ): penetration {k.primal_feasibility:.2e}, "
-            f"complementarity {k.complementarity:.2e}, equilibrium {k.equilibrium:.2e}, "
-            f"force balance {k.force_balance:.2e}"
-        )
-        hand = self.penalty_estimate is None and self.surface_penalty is None
-        if result.status == "inexact_step1":
-            return (
-                f"ADMM's stopping test was met after {result.iterations} iterations, but the "
-                f"equilibrium residual recomputed from (u, λ) is {k.equilibrium:.2e} where "
-                f"the iteration's identity gives {h['equilibrium'][-1]:.2e}: the step-1 "
-                "solves are not exact (petsc_options "
-                f"{dict(self.settings.petsc_options)}). Use the "
-                "default factorisation, or step1_rtol='auto' (or tighten the iterative "
-                "solver, ksp_rtol ≤ 1e-10). "
-                "The partial result is attached as `err.result`."
-            )
-        if result.status == "inaccurate":
-            return (
-                f"ADMM's relative-change test was met after {result.iterations} iterations "
-                f"at r = {r:.6g}, but the iteration had stagnated, not converged: {residuals}, "
-                f"above kkt_tol = {self.settings.kkt_tol:g}. "
-                + (
-                    "r set by hand is far from the balanced penalty: use penalty='auto'. "
-                    if hand
-                    else "Use the 'kkt' stopping test (mode='accelerated'). "
-                )
-                + "The partial result is attached as `err.result`."
-            )
-        advice = (
-            "use penalty='auto' (r set by hand is the usual cause of a slow ADMM), or "
-            "increase max_iter"
-            if hand
-            else "increase max_iter"
-        )
-        if isinstance(self.plan.inner_rtol, float):
-            advice = (
-                f"the step-1 tolerance is fixed at {self.plan.inner_rtol:g}, and the "
-                "outer iteration stalls at the level of a fixed inner error: use "
-                "step1_rtol='auto' (tolerances tied to the outer residual), or " + advice
-            )
-        return (
-            f"ADMM did not converge in {self.settings.max_iter} iterations at r = {r:.6g} "
-            f"({self.settings.stopping!r} test at rtol = {self.settings.rtol:.1e}; last "
-            "residuals: fpr "
-            f"{h['fpr'][-1]:.2e}, equilibrium {h['equilibrium'][-1]:.2e}, du "
-            f"{h['du'][-1]:.2e}, dp {h['dp'][-1]:.2e}; {residuals}): {advice}. The partial "
-            "result is attached as `err.result`."
-        )
-
-    def _slow_convergence_warning(self, history: dict, converged: bool) -> str:
-        """A loud note when the iteration was slow, with its observed contraction."""
-        n = len(history["fpr"])
-        if n < SLOW_ITERATIONS:
-            return ""
-        tail = np.asarray(history["fpr"][-20:], dtype=float)
-        tail = tail[tail > 0]
-        rate = float(np.exp(np.mean(np.diff(np.log(tail))))) if tail.size > 2 else float("nan")
-        automatic = self.penalty_estimate is not None or self.surface_penalty is not None
-        origin = "automatic" if automatic else "given by hand"
-        if not automatic:
-            advice = "use penalty='auto' (r*), which balances the extreme modes."
-        elif self.settings.anderson == 0:
-            advice = "try Anderson acceleration (anderson=5, the default of mode='accelerated')."
-        elif self.polisher is None and self.plan.step1 != "iterative":
-            advice = (
-                "polish=True finishes with the exact contact set once it is found (where "
-                "the contact alone holds the body, the usual cause)."
-            )
-        else:
-            advice = (
-                "the body may be held by the contact alone, or the contact zone badly "
-                "resolved (refine the mesh near the contact)."
-            )
-        return (
-            f"ADMM {'needed' if converged else 'ran'} {n} iterations (contraction of the "
-            f"fixed-point residual ≈ {rate:.4f} per iteration) at r = {self.penalty:.6g} "
-            f"({origin}). This is slow: {advice}"
-        )
 
     # ------------------------------------------------------------------ lifetime
     def destroy(self) -> None:
