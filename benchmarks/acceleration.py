@@ -122,12 +122,13 @@ def run_variant(problem, u_ref, r, options, cap=None, max_iter=3000, condensed=N
     own, else 0. ``options`` may set ``rounds``: the polisher's correction rounds.
     """
     options = dict(options)
+    expert = {**options.pop("expert", {}), "condensed": condensed}
     rounds = options.pop("rounds", None)
     if rounds is not None:
-        options["polish_rounds"] = rounds
+        expert["polish_rounds"] = rounds
     trace = ErrorTrace(u_ref, cap)
     with admm_dolfinx.ADMMSolver(
-        problem, penalty=r, rtol=1e-300, max_iter=max_iter, condensed=condensed, **options
+        problem, penalty=r, rtol=1e-300, max_iter=max_iter, **options, expert=expert
     ) as solver:
         try:
             result = solver.solve(callback=trace)
@@ -190,17 +191,20 @@ def plain_solve_times(problem, r):
     return t_fact, t_solve
 
 
-PAPER = {"alpha": 1.0, "anderson": 0, "polish": False}
+PAPER = {"polish": False, "expert": {"alpha": 1.0, "anderson": 0}}
 VARIANTS = {
     "paper r*": {"mode_options": PAPER},
-    "relaxed": {"mode_options": {"alpha": 1.6, "anderson": 0, "polish": False}},
-    "anderson": {"mode_options": {"alpha": 1.0, "anderson": 5, "polish": False}},
-    "both": {"mode_options": {"alpha": 1.6, "anderson": 5, "polish": False}},
+    "relaxed": {"mode_options": {"polish": False, "expert": {"alpha": 1.6, "anderson": 0}}},
+    "anderson": {"mode_options": {"polish": False, "expert": {"alpha": 1.0, "anderson": 5}}},
+    "both": {"mode_options": {"polish": False, "expert": {"alpha": 1.6, "anderson": 5}}},
     # the solver's own r* and (condensed) factorisation, whose S_C the polisher reads
-    "polished": {"mode_options": {"alpha": 1.6, "anderson": 5, "polish": True}, "r": "auto"},
+    "polished": {
+        "mode_options": {"polish": True, "expert": {"alpha": 1.6, "anderson": 5}},
+        "r": "auto",
+    },
     # 3D only: the metric r(M + βL_Γ) with its own β and r, and its own factorisation
     "surface": {
-        "mode_options": {"alpha": 1.6, "anderson": 5, "penalty_metric": "surface"},
+        "mode_options": {"expert": {"alpha": 1.6, "anderson": 5, "penalty_metric": "surface"}},
         "r": "auto",
     },
 }
@@ -455,14 +459,16 @@ def main():
 
     if args.select:
         grid = {
-            f"alpha {a}, m {m}": {"mode_options": {"alpha": a, "anderson": m, "polish": False}}
+            f"alpha {a}, m {m}": {
+                "mode_options": {"polish": False, "expert": {"alpha": a, "anderson": m}}
+            }
             for a in (1.0, 1.3, 1.6, 1.8)
             for m in (0, 3, 5, 10)
         }
         # polishing is the default where S_C is at hand (2D): its grid on the 2D meshes
         polish_grid = {
             f"alpha {a}, m {m}, polish": {
-                "mode_options": {"alpha": a, "anderson": m, "polish": True}
+                "mode_options": {"polish": True, "expert": {"alpha": a, "anderson": m}}
             }
             for a in (1.0, 1.6)
             for m in (0, 5)

@@ -95,8 +95,11 @@ def bench_mesh(name, scene):
 
     row = {"mesh": name, "dofs": dofs, "m": problem.num_contact_nodes, "active": num_active}
     actual = {
-        "paper r*": {"alpha": 1.0, "anderson": 0, "polish": False},
-        "both, no polish": {"alpha": DEFAULT_ALPHA, "anderson": DEFAULT_ANDERSON, "polish": False},
+        "paper r*": {"polish": False, "expert": {"alpha": 1.0, "anderson": 0}},
+        "both, no polish": {
+            "polish": False,
+            "expert": {"alpha": DEFAULT_ALPHA, "anderson": DEFAULT_ANDERSON},
+        },
     }
     for label, options in actual.items():
         trace, *_ = run_variant(problem, u_ref, r, options, max_iter=MAX_ITER)

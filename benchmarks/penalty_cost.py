@@ -71,8 +71,8 @@ def measure(name, scene, repeat):
                 penalty=penalty,
                 mode=mode,
                 polish=False,
-                penalty_metric="mass",
                 step1="factorised",
+                expert={"penalty_metric": "mass"},
             ) as admm:
                 return admm.solve()
 

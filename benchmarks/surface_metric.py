@@ -146,7 +146,7 @@ def rule_row(name, scene):
     c = problem.contact
     say(f"\n## {name}: m = {problem.num_contact_nodes}")
     u_ref, how, _ = reference(problem, True)
-    trace_mass, *_ = traced_solve(problem, u_ref, penalty_metric="mass")
+    trace_mass, *_ = traced_solve(problem, u_ref, expert={"penalty_metric": "mass"})
     trace_default, _, info = traced_solve(problem, u_ref)
     T = dense_compliance(problem)
     L = dense_laplacian(problem)
@@ -190,7 +190,7 @@ def speed_rows(name, options):
     say(f"   reference: {how}")
     runs = {
         "surface (default)": {},
-        "paper metric, α 1.6 + Anderson 5": {"penalty_metric": "mass"},
+        "paper metric, α 1.6 + Anderson 5": {"expert": {"penalty_metric": "mass"}},
     }
     results = {}
     for label, opts in runs.items():
@@ -240,7 +240,7 @@ def select_grid():
         problem = build().problem(contact_normal=MODEL)
         u_ref, _, _ = reference(problem, True)
         for (alpha, memory), total in totals.items():
-            trace, *_ = traced_solve(problem, u_ref, alpha=alpha, anderson=memory)
+            trace, *_ = traced_solve(problem, u_ref, expert={"alpha": alpha, "anderson": memory})
             for i, target in enumerate(TARGETS):
                 total[i] += trace.iterations_to(target) or 10**6
         u_ref.destroy()

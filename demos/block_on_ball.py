@@ -104,7 +104,7 @@ with admm_dolfinx.ADMMSolver(
     rtol=args.rtol,
     petsc_options_prefix="block_",
     polish=True if args.polish else None,
-    penalty_metric=args.penalty_metric,
+    expert={"penalty_metric": args.penalty_metric},
 ) as solver:
     result = solver.solve()
 say(result.summary())

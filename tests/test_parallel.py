@@ -39,7 +39,7 @@ def _solve(comm, h, mesher, penalty=3000.0, **options):
         ("gmsh", {"mode": "paper"}),
         ("builtin", {"mode": "paper"}),
         ("gmsh", {}),
-        ("gmsh", {"alpha": 1.6, "anderson": 5}),
+        ("gmsh", {"expert": {"alpha": 1.6, "anderson": 5}}),
     ],
 )
 def test_parallel_matches_serial(mesher, options):
@@ -91,7 +91,7 @@ def test_parallel_surface_metric_matches_serial():
     for name, comm in (("par", MPI.COMM_WORLD), ("ser", MPI.COMM_SELF)):
         problem = example3(comm, level=1).problem()
         with ADMMSolver(
-            problem, rtol=1e-10, penalty_method="factorised", penalty_tol=1e-8
+            problem, rtol=1e-10, expert={"penalty_method": "factorised", "penalty_tol": 1e-8}
         ) as solver:
             result = solver.solve()
         _, u = gather_nodal(result.u)

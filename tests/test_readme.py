@@ -54,3 +54,27 @@ def test_readme_names_what_it_promises():
     for path in ("LICENSE", "CITATION.cff", "docs/index.md", "containers", "demos/load_steps.py"):
         assert (root / path).exists(), path
     assert "hal-02047516" in text
+
+
+def test_the_readme_settings_table_is_the_user_surface():
+    """The README's settings table lists exactly the settings a user sets by name, in
+    order, with the defaults that ``ADMMSettings.create()`` gives."""
+    import re
+
+    from admm_dolfinx import ADMMSettings
+    from admm_dolfinx.admm.settings import PAPER_RTOL, USER_SETTINGS
+
+    section = README.read_text().split("## Settings", 1)[1].split("\n## ", 1)[0]
+    rows = re.findall(r"^\| `(\w+)` \| (.+?) \|", section, flags=re.MULTILINE)
+    assert [name for name, _ in rows] == list(USER_SETTINGS)
+    defaults, stated = ADMMSettings.create(), dict(rows)
+    assert stated["penalty"] == f'`"{defaults.penalty}"`'
+    assert stated["mode"] == f'`"{defaults.mode}"`'
+    assert stated["rtol"] == f"`{defaults.rtol:.0e}` (paper: `{PAPER_RTOL:.0e}`)".replace(
+        "e-0", "e-"
+    )
+    assert stated["max_iter"] == f"`{defaults.max_iter}`"
+    assert defaults.polish is None and stated["polish"] == "automatic"
+    assert stated["step1"] == f'`"{defaults.step1}"`'
+    assert dict(defaults.petsc_options) == {} and stated["petsc_options"] == "`{}`"
+    assert stated["petsc_options_prefix"] == f'`"{defaults.petsc_options_prefix}"`'

@@ -159,7 +159,7 @@ def cmd_run(args) -> int:
         if args.polish is not None:
             options["polish"] = args.polish
         if args.penalty_metric != "auto":
-            options["penalty_metric"] = args.penalty_metric
+            options["expert"] = {"penalty_metric": args.penalty_metric}
         with ADMMSolver(problem, **options) as solver:
             result = solver.solve()
     except ADMMConvergenceError as err:

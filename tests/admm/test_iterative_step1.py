@@ -29,7 +29,7 @@ def test_iterative_step1_gives_the_factorised_answer(scene):
     with ADMMSolver(problem, step1="factorised", rtol=1e-10) as direct:
         exact = direct.solve()
     with ADMMSolver(problem, step1="iterative", rtol=1e-10) as iterative:
-        assert iterative.plan.step1 == "iterative" and iterative.plan.inner_rtol == "adaptive"
+        assert iterative.plan.step1 == "iterative" and iterative.plan.ksp_rtol == "auto"
         result = iterative.solve()
     assert result.converged and result.kkt.max() <= 1e-10
     assert _rel(result.u.x.petsc_vec, exact.u.x.petsc_vec) <= 1e-8
@@ -111,8 +111,9 @@ def test_a_fixed_inner_tolerance_stalls_and_says_so():
     """The reason for the rule: at a fixed ksp_rtol 1e-6 the outer residual stalls at
     the inner error; the error names the fix."""
     problem = example3(level=1).problem()
-    with ADMMSolver(problem, step1="iterative", step1_rtol=1e-4, max_iter=150) as solver:
-        with pytest.raises(ADMMConvergenceError, match="step1_rtol='auto'"):
+    options = {"ksp_rtol": 1e-4}
+    with ADMMSolver(problem, step1="iterative", petsc_options=options, max_iter=150) as solver:
+        with pytest.raises(ADMMConvergenceError, match="drop ksp_rtol from petsc_options"):
             solver.solve()
     with ADMMSolver(problem, step1="iterative", max_iter=150) as solver:
         assert solver.solve().converged
@@ -142,11 +143,11 @@ def test_inexact_rule_is_summable_tied_to_the_residual_and_tightens():
     [
         ({"step1": "factorised", "petsc_options": {"ksp_type": "cg"}}, "conflicts"),
         ({"step1": "iterative", "petsc_options": {"ksp_type": "preonly"}}, "conflicts"),
-        ({"step1_rtol": 1e-8, "petsc_options": {"ksp_rtol": 1e-8}}, "both set"),
-        ({"step1": "factorised", "step1_rtol": 1e-8}, "solves exactly"),
+        ({"step1": "factorised", "petsc_options": {"ksp_rtol": 1e-8}}, "solves exactly"),
+        ({"petsc_options": {"ksp_rtol": 1e-8}}, "pass step1='iterative'"),
         ({"step1": "iterative", "polish": True}, "Schur complement"),
         ({"step1": "direct"}, "step1 must be one of"),
-        ({"step1_rtol": 2.0}, r"\(0, 1\)"),
+        ({"step1": "iterative", "petsc_options": {"ksp_rtol": 2.0}}, r"\(0, 1\)"),
     ],
 )
 def test_step1_settings_conflicts_raise(given, message):

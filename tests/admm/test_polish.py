@@ -144,7 +144,7 @@ def test_failed_attempts_leave_the_iteration_converging():
     problem = example1(h=1 / 32).problem()
     with ADMMSolver(problem) as solver:
         default = solver.solve()
-    with ADMMSolver(problem, polish_rounds=1) as solver:
+    with ADMMSolver(problem, expert={"polish_rounds": 1}) as solver:
         result = solver.solve()
     assert result.polish.attempts >= 2
     assert result.kkt.max() <= 1e-6

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from dataclasses import fields
 
 import numpy as np
 import pytest
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSettings, ADMMSolver
-from admm_dolfinx.admm.settings import PAPER_RTOL
+from admm_dolfinx.admm.settings import EXPERT_SETTINGS, PAPER_RTOL, USER_SETTINGS
 from admm_dolfinx.scenes import example1, example3
 
 
@@ -33,7 +34,7 @@ def test_defaults_and_presets():
     assert paper.rtol == PAPER_RTOL and paper.kkt_tol == 1e-2
     assert ADMMSettings.create(mode="paper", rtol=1e-7).rtol == 1e-7  # rtol: only a default
     # a preset value given explicitly is no conflict
-    assert ADMMSettings.create(mode="paper", alpha=1.0).alpha == 1.0
+    assert ADMMSettings.create(mode="paper", expert={"alpha": 1.0}).alpha == 1.0
 
 
 @pytest.mark.parametrize(
@@ -47,32 +48,61 @@ def test_defaults_and_presets():
     ],
 )
 def test_paper_mode_refuses_a_conflicting_value(name, value, problem):
+    given = {name: value} if name in USER_SETTINGS else {"expert": {name: value}}
     with pytest.raises(ValueError, match=rf"mode='paper' fixes {name}"):
-        ADMMSettings.create(mode="paper", **{name: value})
+        ADMMSettings.create(mode="paper", **given)
     with pytest.raises(ValueError, match=rf"mode='paper' fixes {name}"):
-        ADMMSolver(problem, mode="paper", **{name: value})
+        ADMMSolver(problem, mode="paper", **given)
 
 
 def test_unknown_names_are_refused_with_a_suggestion(problem):
-    with pytest.raises(TypeError, match=r"'alpah' \(did you mean 'alpha'\?\)"):
+    with pytest.raises(
+        TypeError, match=r"'alpah' is not a setting \(did you mean expert=\{'alpha'"
+    ):
         ADMMSettings.create(alpah=1.5)
-    with pytest.raises(TypeError, match="Unknown ADMM setting"):
+    with pytest.raises(TypeError, match=r"'max_iters' is not a setting \(did you mean max_iter"):
         ADMMSolver(problem, max_iters=10)
+    with pytest.raises(TypeError, match=r"'anderzon' is not an expert setting \(did you mean"):
+        ADMMSettings.create(expert={"anderzon": 3})
+
+
+def test_the_user_surface_is_the_few_settings_and_the_expert_group(problem):
+    """An expert setting by name, a user setting in expert, or an old name: each raises
+    with the spelling to use (no silent aliasing)."""
+    assert len(USER_SETTINGS) == 8 and not set(USER_SETTINGS) & set(EXPERT_SETTINGS)
+    assert set(USER_SETTINGS) | set(EXPERT_SETTINGS) == {f.name for f in fields(ADMMSettings)}
+    with pytest.raises(
+        TypeError, match=r"'alpha' is an expert setting: pass expert=\{'alpha': 1.2\}"
+    ):
+        ADMMSolver(problem, alpha=1.2)
+    with pytest.raises(TypeError, match=r"'rtol' is a setting of its own: pass rtol="):
+        ADMMSettings.create(expert={"rtol": 1e-8})
+    with pytest.raises(TypeError, match=r"'step1_rtol' is gone: .*petsc_options=\{'ksp_rtol'"):
+        ADMMSettings.create(step1_rtol=1e-8)
+    with pytest.raises(TypeError, match="expert must be a mapping"):
+        ADMMSettings.create(expert=[("alpha", 1.2)])
+    settings = ADMMSettings.create(rtol=1e-8, expert={"alpha": 1.2, "anderson": 0})
+    assert (settings.rtol, settings.alpha, settings.anderson) == (1e-8, 1.2, 0)
+    assert settings.expert["alpha"] == 1.2 and settings.as_dict()["expert"]["anderson"] == 0
+    # replace keeps the other expert values, and validates like create
+    assert settings.replace(expert={"anderson": 3}).alpha == 1.2
+    with pytest.raises(TypeError, match="is an expert setting"):
+        settings.replace(anderson=3)
 
 
 @pytest.mark.parametrize(
     "options,message",
     [
         ({"rtol": 0.0}, "rtol must be a positive"),
-        ({"alpha": 2.0}, "alpha"),
-        ({"anderson": -1}, "anderson"),
+        ({"expert": {"alpha": 2.0}}, "alpha"),
+        ({"expert": {"anderson": -1}}, "anderson"),
         ({"max_iter": 0}, "max_iter"),
-        ({"penalty_tol": 1.5}, "penalty_tol"),
-        ({"stopping": "often"}, "stopping must be one of"),
+        ({"expert": {"penalty_tol": 1.5}}, "penalty_tol"),
+        ({"expert": {"stopping": "often"}}, "stopping must be one of"),
         ({"penalty": -1.0}, "positive finite"),
-        ({"penalty": 3.0, "penalty_metric": "surface"}, "chooses r and β itself"),
-        ({"penalty": 3.0, "penalty_method": "dense"}, "penalty is given"),
-        ({"rtol": 1e-6, "kkt_tol": 1e-8}, "below rtol"),
+        ({"penalty": 3.0, "expert": {"penalty_metric": "surface"}}, "chooses r and β itself"),
+        ({"penalty": 3.0, "expert": {"penalty_method": "dense"}}, "penalty is given"),
+        ({"rtol": 1e-6, "expert": {"kkt_tol": 1e-8}}, "below rtol"),
         ({"petsc_options_prefix": "-x"}, "prefix"),
     ],
 )
@@ -88,7 +118,7 @@ def test_settings_are_frozen_and_replace_validates():
     tighter = settings.replace(rtol=1e-9)
     assert tighter.rtol == tighter.kkt_tol == 1e-9 and settings.rtol == 1e-7
     with pytest.raises(ValueError):
-        settings.replace(alpha=3.0)
+        settings.replace(expert={"alpha": 3.0})
 
 
 def test_prefixes_are_deterministic_and_derived():
@@ -107,7 +137,7 @@ def test_the_plan_is_printable_before_a_solve(problem):
     three = example3(MPI.COMM_WORLD, level=0).problem()
     with ADMMSolver(three) as solver:
         assert solver.plan.metric == "surface" and solver.plan.penalty == "local"
-    with ADMMSolver(three, penalty_method="factorised", penalty_tol=1e-8) as solver:
+    with ADMMSolver(three, expert={"penalty_method": "factorised", "penalty_tol": 1e-8}) as solver:
         assert solver.penalty_estimate.details["method"] == "factorised"
 
 
@@ -126,9 +156,9 @@ def test_penalty_tolerance_follows_the_metric(problem):
     three = example3(MPI.COMM_WORLD, level=0).problem()
     cases = (
         ({}, "surface", SURFACE_PENALTY_TOL),
-        ({"penalty_metric": "mass"}, "mass", DEFAULT_PENALTY_TOL),
-        ({"penalty_tol": 0.05}, "surface", 0.05),
-        ({"penalty_metric": "mass", "penalty_tol": 0.05}, "mass", 0.05),
+        ({"expert": {"penalty_metric": "mass"}}, "mass", DEFAULT_PENALTY_TOL),
+        ({"expert": {"penalty_tol": 0.05}}, "surface", 0.05),
+        ({"expert": {"penalty_metric": "mass", "penalty_tol": 0.05}}, "mass", 0.05),
     )
     for options, metric, tol in cases:
         with ADMMSolver(three, **options) as solver:
@@ -136,7 +166,7 @@ def test_penalty_tolerance_follows_the_metric(problem):
             assert solver.plan.penalty_tol == tol
             assert solver.penalty_estimate.details["tol"] == tol
             assert f"(tol {tol:g})" in solver.plan.describe()
-    with ADMMSolver(three, penalty=1e6, penalty_metric="mass") as solver:
+    with ADMMSolver(three, penalty=1e6, expert={"penalty_metric": "mass"}) as solver:
         assert solver.plan.penalty == "given" and solver.plan.penalty_tol is None
 
 
@@ -180,7 +210,7 @@ def test_floating_3d_plans_are_consistent(floating):
     for polish, condensed, metric in itertools.product(
         (None, True, False), (None, True, False), ("auto", "mass", "surface")
     ):
-        options = {"polish": polish, "condensed": condensed, "penalty_metric": metric}
+        options = {"polish": polish, "expert": {"condensed": condensed, "penalty_metric": metric}}
         try:
             plan = make_plan(floating, ADMMSettings.create(**options))
         except ValueError:
@@ -196,14 +226,16 @@ def test_floating_3d_plans_are_consistent(floating):
             )
     refusal = "condensed step 1 cannot" if serial else "condensed=True needs one process"
     with pytest.raises(ValueError, match=refusal):
-        make_plan(floating, ADMMSettings.create(condensed=True, penalty_metric="surface"))
-    cases = {
-        (): ("dense", "mass", "dense"),
-        (("penalty_metric", "surface"),): ("none", "surface", "local"),
-        (("polish", False),): ("none", "surface", "local"),
-        (("polish", True),): ("dense", "mass", "dense"),
-    }
-    for options, (polish, metric, penalty) in cases.items():
-        plan = make_plan(floating, ADMMSettings.create(**dict(options)))
+        make_plan(
+            floating, ADMMSettings.create(expert={"condensed": True, "penalty_metric": "surface"})
+        )
+    cases = [
+        ({}, ("dense", "mass", "dense")),
+        ({"expert": {"penalty_metric": "surface"}}, ("none", "surface", "local")),
+        ({"polish": False}, ("none", "surface", "local")),
+        ({"polish": True}, ("dense", "mass", "dense")),
+    ]
+    for options, (polish, metric, penalty) in cases:
+        plan = make_plan(floating, ADMMSettings.create(**options))
         assert (plan.polish, plan.metric, plan.penalty) == (polish, metric, penalty), options
         assert plan.step1 == ("condensed" if serial and metric == "mass" else "factorised")

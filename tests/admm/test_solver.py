@@ -86,7 +86,12 @@ def test_history_and_timings_are_recorded():
 
 
 @pytest.mark.parametrize(
-    "options", [{"alpha": 1.6, "anderson": 0}, {"anderson": 5}, {"alpha": 1.6, "anderson": 5}]
+    "options",
+    [
+        {"expert": {"alpha": 1.6, "anderson": 0}},
+        {"expert": {"anderson": 5}},
+        {"expert": {"alpha": 1.6, "anderson": 5}},
+    ],
 )
 def test_accelerated_variants_match_snes_vi(options):
     problem = example1(h=1 / 16).problem()
@@ -101,7 +106,7 @@ def test_accelerated_variants_match_snes_vi(options):
 def test_anderson_needs_fewer_iterations_at_equal_tolerance():
     problem = example1(h=1 / 16).problem()
     its = {}
-    for name, options in {"plain": {"anderson": 0, "alpha": 1.0}, "aa": {}}.items():
+    for name, options in {"plain": {"expert": {"anderson": 0, "alpha": 1.0}}, "aa": {}}.items():
         with ADMMSolver(problem, rtol=1e-8, polish=False, **options) as solver:
             its[name] = solver.solve().iterations
     assert its["aa"] * 2 < its["plain"]
@@ -110,11 +115,11 @@ def test_anderson_needs_fewer_iterations_at_equal_tolerance():
 @pytest.mark.parametrize(
     "options,message",
     [
-        ({"alpha": 2.0}, "alpha"),
-        ({"alpha": 0.0}, "alpha"),
-        ({"anderson": -1}, "memory"),
+        ({"expert": {"alpha": 2.0}}, "alpha"),
+        ({"expert": {"alpha": 0.0}}, "alpha"),
+        ({"expert": {"anderson": -1}}, "memory"),
         ({"mode": "fast"}, "mode"),
-        ({"stopping": "never"}, "stopping"),
+        ({"expert": {"stopping": "never"}}, "stopping"),
         ({"rtol": 0.0}, "rtol"),
     ],
 )

@@ -206,7 +206,9 @@ def test_same_solution_as_the_paper_metric(scene):
     with ADMMSolver(problem, rtol=1e-10, max_iter=3000) as solver:  # 3D default: surface
         assert solver.plan.metric == "surface"
         surface = solver.solve()
-    with ADMMSolver(problem, rtol=1e-10, max_iter=3000, penalty_metric="mass") as solver:
+    with ADMMSolver(
+        problem, rtol=1e-10, max_iter=3000, expert={"penalty_metric": "mass"}
+    ) as solver:
         mass = solver.solve()
     assert surface.kkt.max() <= 1e-8
     assert rel_diff(_global(problem, surface.u.x.array), _global(problem, mass.u.x.array)) <= 1e-8
@@ -292,7 +294,9 @@ def test_beta_and_r_against_the_dense_pencil(level):
     import scipy.linalg as sla
 
     problem = example3(level=level).problem(contact_normal="body")
-    with ADMMSolver(problem, penalty_method="factorised", penalty_tol=1e-8) as solver:
+    with ADMMSolver(
+        problem, expert={"penalty_method": "factorised", "penalty_tol": 1e-8}
+    ) as solver:
         info = solver.surface_penalty
     metric = SurfaceMetric(problem)
     try:
@@ -328,15 +332,15 @@ def test_beta_and_r_against_the_dense_pencil(level):
 def test_surface_metric_bad_combinations(kwargs, match):
     problem = example3(level=0).problem(contact_normal="body")
     with pytest.raises(ValueError, match=match):
-        ADMMSolver(problem, penalty_metric="surface", **kwargs)
+        ADMMSolver(problem, **kwargs, expert={"penalty_metric": "surface"})
 
 
 def test_surface_metric_errors_in_2d_and_unknown_metric():
     problem = example1(h=1 / 8).problem()
     with pytest.raises(ValueError, match="is for 3D bodies"):
-        ADMMSolver(problem, penalty_metric="surface")
+        ADMMSolver(problem, expert={"penalty_metric": "surface"})
     with pytest.raises(ValueError, match="penalty_metric must be one of"):
-        ADMMSolver(problem, penalty_metric="h1")
+        ADMMSolver(problem, expert={"penalty_metric": "h1"})
     with ADMMSolver(problem) as solver:  # 2D: the paper's metric (and polishing)
         assert solver.plan.metric == "mass"
 

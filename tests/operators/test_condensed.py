@@ -100,7 +100,7 @@ def test_sweep_factorises_once_and_counts_like_ordinary_factorisations():
     assert num.getPerfInfo()["count"] - before == 1
     expected = []
     for r in r_values:
-        with ADMMSolver(problem, penalty=r, mode="paper", condensed=False) as solver:
+        with ADMMSolver(problem, penalty=r, mode="paper", expert={"condensed": False}) as solver:
             expected.append(solver.solve().iterations)
     np.testing.assert_array_equal(sweep.iterations, expected)
 
@@ -108,9 +108,9 @@ def test_sweep_factorises_once_and_counts_like_ordinary_factorisations():
 @serial_only
 def test_condensed_admm_matches_ordinary():
     problem = example2(level=0).problem()
-    with ADMMSolver(problem, penalty=2500.0, condensed=True, polish=False) as solver:
+    with ADMMSolver(problem, penalty=2500.0, polish=False, expert={"condensed": True}) as solver:
         first = solver.solve()
-    with ADMMSolver(problem, penalty=2500.0, condensed=False) as solver:
+    with ADMMSolver(problem, penalty=2500.0, expert={"condensed": False}) as solver:
         second = solver.solve()
     assert first.iterations == second.iterations
     assert _rel(first.u.x.petsc_vec, second.u.x.petsc_vec) <= 1e-10
@@ -124,12 +124,12 @@ def test_condensed_needs_mumps_and_one_process():
         ADMMSolver(
             problem,
             penalty=100.0,
-            condensed=True,
             petsc_options={"pc_type": "lu", "pc_factor_mat_solver_type": "petsc"},
+            expert={"condensed": True},
         )
     if problem.comm.size > 1:
         with pytest.raises(ValueError, match="condensed=True needs one process"):
-            ADMMSolver(problem, penalty=100.0, condensed=True)
+            ADMMSolver(problem, penalty=100.0, expert={"condensed": True})
         condensed = CondensedOperator(problem, "test_mpi_")  # r* only
         with pytest.raises(RuntimeError, match="needs one process"):
             condensed.set_penalty(100.0)

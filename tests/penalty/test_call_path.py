@@ -86,7 +86,7 @@ def _cycle(edges) -> list[str] | None:
         # 3D default: multigrid, and layers of cells along Γ_C (problem/contact_layer.py)
         (lambda: example3(level=0), {}, 7),
         # the factorised method also enters the step-1 operator that it shares
-        (lambda: example3(level=0), {"penalty_method": "factorised"}, 7),
+        (lambda: example3(level=0), {"expert": {"penalty_method": "factorised"}}, 7),
     ],
     ids=["2d-dense", "3d-local", "3d-factorised"],
 )

@@ -192,7 +192,7 @@ def test_auto_penalty_shares_one_symbolic_factorisation(method, tol, metric):
     body at its own r, with the same symbolic analysis."""
     problem = example3(level=0).problem(contact_normal="body")
     sym0, num0 = _cholesky_counts()
-    options = {"penalty_method": method, "penalty_tol": tol, "penalty_metric": metric}
+    options = {"expert": {"penalty_method": method, "penalty_tol": tol, "penalty_metric": metric}}
     with ADMMSolver(problem, **options) as solver:
         result = solver.solve()
         estimate = solver.penalty_estimate

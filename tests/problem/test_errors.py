@@ -202,9 +202,9 @@ def test_bad_penalty_estimate_options(scene):
 
     problem = scene.problem()
     with pytest.raises(ValueError, match="penalty_tol must lie in"):
-        ADMMSolver(problem, penalty_tol=0.0)
+        ADMMSolver(problem, expert={"penalty_tol": 0.0})
     with pytest.raises(ValueError, match="penalty_tol must lie in"):
-        ADMMSolver(problem, penalty_tol=math.nan)
+        ADMMSolver(problem, expert={"penalty_tol": math.nan})
     with pytest.raises(ValueError, match="max_it must be an integer ≥ 1"):
         estimate_penalty(problem, max_it=0)
 

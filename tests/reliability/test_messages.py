@@ -72,10 +72,9 @@ def test_missing_load_advice_works(scene):
 def test_numpy_scalars_are_accepted(scene):
     solver = ADMMSolver(
         problem_from(scene),
-        penalty_tol=np.float32(0.01),
         rtol=np.float64(1e-6),
-        alpha=np.float32(1.5),
         max_iter=np.int64(200),
+        expert={"penalty_tol": np.float32(0.01), "alpha": np.float32(1.5)},
     )
     assert solver.solve().converged
 
@@ -202,7 +201,7 @@ def test_slow_solve_advice_fits_the_settings(scene):
     text = slow(polish=False)
     assert "400 iterations" in text and "anderson" not in text.lower()
     assert "polish=True" in text
-    assert "Anderson acceleration (anderson=5" in slow(anderson=0)
+    assert "Anderson acceleration (expert={'anderson': 5}" in slow(expert={"anderson": 0})
     assert "penalty='auto'" in slow(penalty=3000.0)
 
 

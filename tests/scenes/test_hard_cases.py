@@ -125,10 +125,10 @@ def test_extreme_penalty_converges_slowly_and_says_so(factor):
     problem = example1(h=1 / 8, mesher="builtin").problem()
     r_star = estimate_penalty(problem).r
     with ADMMSolver(
-        problem, penalty=factor * r_star, anderson=0, alpha=1.0, max_iter=20000
+        problem, penalty=factor * r_star, max_iter=20000, expert={"anderson": 0, "alpha": 1.0}
     ) as solver:
         result = solver.solve()
-    with ADMMSolver(problem, penalty=r_star, anderson=0, alpha=1.0) as solver:
+    with ADMMSolver(problem, penalty=r_star, expert={"anderson": 0, "alpha": 1.0}) as solver:
         at_r_star = solver.solve()
     _check_sane(result, problem)
     assert result.iterations > 5 * at_r_star.iterations

@@ -45,7 +45,7 @@ class InexactRule:
     """The inner tolerances τ_k of an iterative step 1.
 
     Args:
-        fixed: A fixed tolerance (the user's ``step1_rtol`` or ``ksp_rtol``), or None
+        fixed: A fixed tolerance (``ksp_rtol`` in the user's ``petsc_options``), or None
             for the adaptive rule.
     """
 

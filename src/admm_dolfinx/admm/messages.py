@@ -41,8 +41,8 @@ def failure_message(result: ADMMResult) -> str:
             f"equilibrium residual recomputed from (u, λ) is {k.equilibrium:.2e} where "
             f"the iteration's identity gives {h['equilibrium'][-1]:.2e}: the step-1 "
             f"solves are not exact (petsc_options {dict(s.petsc_options)}). Use the "
-            "default factorisation, or step1_rtol='auto' (or tighten the iterative "
-            "solver, ksp_rtol ≤ 1e-10). "
+            "default factorisation, or drop ksp_rtol from petsc_options (the default "
+            "ties the step-1 tolerance to the outer residual), or tighten it (≤ 1e-10). "
             "The partial result is attached as `err.result`."
         )
     if result.status == "inaccurate":
@@ -62,11 +62,12 @@ def failure_message(result: ADMMResult) -> str:
         if hand
         else "increase max_iter"
     )
-    if isinstance(result.plan.inner_rtol, float):
+    if isinstance(result.plan.ksp_rtol, float):
         advice = (
-            f"the step-1 tolerance is fixed at {result.plan.inner_rtol:g}, and the "
-            "outer iteration stalls at the level of a fixed inner error: use "
-            "step1_rtol='auto' (tolerances tied to the outer residual), or " + advice
+            f"the step-1 tolerance is fixed at ksp_rtol = {result.plan.ksp_rtol:g}, and "
+            "the outer iteration stalls at the level of a fixed inner error: drop "
+            "ksp_rtol from petsc_options (the default ties it to the outer residual), "
+            "or " + advice
         )
     return (
         f"ADMM did not converge in {s.max_iter} iterations at r = {r:.6g} "
@@ -98,7 +99,9 @@ def slow_convergence_warning(result: ADMMResult) -> str:
     if not automatic:
         advice = "use penalty='auto' (r*), which balances the extreme modes."
     elif result.settings.anderson == 0:
-        advice = "try Anderson acceleration (anderson=5, the default of mode='accelerated')."
+        advice = (
+            "try Anderson acceleration (expert={'anderson': 5}, the default of mode='accelerated')."
+        )
     elif result.polish is None and result.plan.step1 != "iterative":
         advice = (
             "polish=True finishes with the exact contact set once it is found (where "

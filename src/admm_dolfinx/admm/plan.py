@@ -89,8 +89,9 @@ class SolverPlan:
         factor_options: The options the inner factorisations take (the step-1 options
             if they describe a MUMPS factorisation, else None: the defaults).
         step1_options: The options of the step-1 solver.
-        inner_rtol: The tolerance of an iterative step 1: ``"adaptive"`` (the inexact
-            rule), a number (fixed), or None (a direct solve).
+        ksp_rtol: The tolerance of an iterative step 1: ``"auto"`` (the inexact rule,
+            tied to the outer residual), a number (``petsc_options["ksp_rtol"]``), or
+            None (a direct solve).
         reasons: Why, in words.
     """
 
@@ -102,7 +103,7 @@ class SolverPlan:
     private_schur: bool
     factor_options: dict | None
     step1_options: dict
-    inner_rtol: str | float | None
+    ksp_rtol: str | float | None
     reasons: tuple[str, ...]
 
     def describe(self) -> str:
@@ -135,8 +136,8 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     schur_possible = condensed_factor_applies(problem, options, any_dimension=explicit)
     if settings.condensed is True and not (serial and schur_possible):
         raise ValueError(
-            "condensed=True needs one process and a MUMPS factorisation (PETSc solves "
-            "with a Schur complement serially only); pass condensed=None."
+            "expert condensed=True needs one process and a MUMPS factorisation (PETSc "
+            "solves with a Schur complement serially only); drop it."
         )
     if settings.polish is True and not factor:
         raise ValueError(
@@ -175,8 +176,8 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     if settings.penalty_metric == "surface":
         if gdim != 3:
             raise ValueError(
-                "penalty_metric='surface' is for 3D bodies (a contact surface); this one "
-                "is 2D (or pass penalty_metric='mass')."
+                "expert penalty_metric='surface' is for 3D bodies (a contact surface); "
+                "this one is 2D: drop it (or pass expert={'penalty_metric': 'mass'})."
             )
         metric = "surface"
     elif (
@@ -191,8 +192,9 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     if metric == "surface":
         if settings.condensed is True:
             raise ValueError(
-                "penalty_metric='surface' penalises with Nᵀ(M + βL_Γ)N, which the "
-                "condensed step 1 cannot: pass condensed=None (or penalty_metric='mass')."
+                "the surface metric penalises with Nᵀ(M + βL_Γ)N, which the condensed "
+                "step 1 cannot: drop expert condensed=True (or pass "
+                "expert={'penalty_metric': 'mass'})."
             )
         # a step 1 condensed onto the metric M cannot penalise with Nᵀ(M + βL_Γ)N, so
         # A + rK is factorised; nothing polishes, so no S_C is wanted either
@@ -214,8 +216,8 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         and not condensed_factor_applies(problem, options, any_dimension=True)
     ):
         raise ValueError(
-            "penalty_method='dense' needs a MUMPS factorisation of the body condensed "
-            "onto Γ_C; use penalty_method='local' or 'factorised'."
+            "expert penalty_method='dense' needs a MUMPS factorisation of the body "
+            "condensed onto Γ_C; use penalty_method 'local' or 'factorised'."
         )
     penalty_tol = settings.penalty_tol
     if penalty == "given":
@@ -234,7 +236,13 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         step1_options=(
             {**options, **CENTRALISED_RHS} if polish == "inverse" and not serial else options
         ),
-        inner_rtol=_inner_rtol(settings, options) if step1 == "iterative" else None,
+        ksp_rtol=(
+            None
+            if step1 != "iterative"
+            else float(options["ksp_rtol"])
+            if "ksp_rtol" in options
+            else "auto"
+        ),
         reasons=tuple(reasons),
     )
 
@@ -263,12 +271,6 @@ def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
     c = problem.comm.allreduce(int(np.count_nonzero(problem.contact.free_normals)))
     memory = available_memory() or float("inf")
     return 24.0 * float(c) ** 2 <= INVERSE_MEMORY_FRACTION * memory
-
-
-def _inner_rtol(settings: ADMMSettings, options: dict) -> str | float:
-    if "ksp_rtol" in options:
-        return float(options["ksp_rtol"])
-    return "adaptive" if settings.step1_rtol == "auto" else float(settings.step1_rtol)
 
 
 def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: dict):

@@ -7,6 +7,12 @@ overridden. ``mode`` selects a preset: ``"accelerated"`` (the default) or ``"pap
 test at the paper's tolerance). A preset fixes the settings that define its
 algorithm; passing a different value for one of them alongside it is an error.
 
+A user sets the few of :data:`USER_SETTINGS` by name. The others
+(:data:`EXPERT_SETTINGS`: the algorithm's knobs for studies and tuning) go in one
+explicit group, ``expert={"alpha": 1.2}``; an expert name passed on its own, or a
+removed name, raises with the spelling to use (:data:`RENAMED`). The step-1 solver is
+configured through ``petsc_options`` alone (its tolerance is ``ksp_rtol``).
+
 Options prefixes are deterministic: ``petsc_options_prefix`` (default ``"admm_"``),
 and under it one derived prefix per inner solver (:attr:`ADMMSettings.prefixes`), so
 that each can be tuned through PETSc's options database.
@@ -27,10 +33,45 @@ from admm_dolfinx._mpi import check_same_on_every_rank
 __all__ = [
     "CHANGE_TEST_KKT_TOL",
     "DEFAULT_PREFIX",
+    "EXPERT_SETTINGS",
     "MODES",
     "PAPER_RTOL",
+    "RENAMED",
+    "USER_SETTINGS",
     "ADMMSettings",
 ]
+
+#: The settings a user sets, by name (the README's table).
+USER_SETTINGS = (
+    "penalty",
+    "mode",
+    "rtol",
+    "max_iter",
+    "polish",
+    "step1",
+    "petsc_options",
+    "petsc_options_prefix",
+)
+#: The algorithm's knobs for studies and tuning: passed together as ``expert={...}``.
+EXPERT_SETTINGS = (
+    "kkt_tol",
+    "alpha",
+    "anderson",
+    "stopping",
+    "penalty_method",
+    "penalty_tol",
+    "penalty_metric",
+    "condensed",
+    "polish_rounds",
+)
+#: Names that are gone, and how to say the same thing now.
+RENAMED = {
+    "step1_rtol": (
+        "the step-1 tolerance is PETSc's ksp_rtol: pass petsc_options={'ksp_rtol': value} "
+        "for a fixed one (by default it follows the outer residual)"
+    ),
+    "ksp_rtol": "pass petsc_options={'ksp_rtol': value}",
+}
 
 #: Tolerance of the paper's relative-change test. With it, Example 1 needs the
 #: iteration counts of the paper's Table 1, so it is taken to be the paper's tolerance
@@ -104,6 +145,50 @@ def _switch(name: str, value: Any) -> bool | None:
     return value
 
 
+def _flatten(given: Mapping[str, Any], expert: Mapping[str, Any] | None) -> dict[str, Any]:
+    """One dict of setting values from the user's names and the ``expert`` group.
+
+    Raises:
+        TypeError: For an unknown or removed name, an expert setting outside ``expert``,
+            a user setting inside it, or an ``expert`` that is not a mapping.
+    """
+    if expert is not None and not isinstance(expert, Mapping):
+        raise TypeError(f"expert must be a mapping of expert settings, got {expert!r}.")
+    expert = dict(expert or {})
+    problems = []
+    for name, value in given.items():
+        if name in EXPERT_SETTINGS:
+            problems.append(f"{name!r} is an expert setting: pass expert={{{name!r}: {value!r}}}")
+        elif name in RENAMED:
+            problems.append(f"{name!r} is gone: {RENAMED[name]}")
+        elif name not in USER_SETTINGS:
+            hint = _closest(name, USER_SETTINGS, EXPERT_SETTINGS)
+            problems.append(f"{name!r} is not a setting{hint}")
+    for name in expert:
+        if name in USER_SETTINGS:
+            problems.append(f"{name!r} is a setting of its own: pass {name}=..., not in expert")
+        elif name in RENAMED:
+            problems.append(f"{name!r} is gone: {RENAMED[name]}")
+        elif name not in EXPERT_SETTINGS:
+            hint = _closest(name, (), EXPERT_SETTINGS)
+            problems.append(f"{name!r} is not an expert setting{hint}")
+    if problems:
+        raise TypeError(
+            "ADMM settings: "
+            + "; ".join(problems)
+            + f". Settings: {', '.join(USER_SETTINGS)}; in expert={{...}}: "
+            + f"{', '.join(EXPERT_SETTINGS)}."
+        )
+    return {**given, **expert}
+
+
+def _closest(name: str, user: tuple[str, ...], expert: tuple[str, ...]) -> str:
+    """' (did you mean ...?)' with the closest names, each spelled as it is passed."""
+    spelled = {n: n for n in user} | {n: f"expert={{{n!r}: ...}}" for n in expert}
+    close = difflib.get_close_matches(name, list(spelled), n=2)
+    return f" (did you mean {' or '.join(spelled[n] for n in close)}?)" if close else ""
+
+
 def check_penalty(r: Any) -> float:
     """A penalty r given by hand: a positive finite real number, else a clear error."""
     try:
@@ -122,6 +207,9 @@ def check_penalty(r: Any) -> float:
 @dataclass(frozen=True)
 class ADMMSettings:
     """Validated settings of :class:`~admm_dolfinx.ADMMSolver` (build with :meth:`create`).
+
+    Every setting reads as an attribute; :data:`USER_SETTINGS` are given by name,
+    :data:`EXPERT_SETTINGS` in ``expert={...}`` (``kkt_tol`` to ``polish_rounds`` below).
 
     Attributes:
         penalty: Penalty parameter r > 0, or ``"auto"``: r* = 1/sqrt(λ_min λ_max) (in
@@ -167,12 +255,11 @@ class ADMMSettings:
             in 3D, if MUMPS's analysis says the factorisation would not fit in memory
             or would cost more than the multigrid path (:mod:`admm_dolfinx.admm.plan`);
             factorised otherwise.
-        step1_rtol: The relative tolerance of an iterative step 1: ``"auto"`` (the
-            inexact rule of :mod:`admm_dolfinx.admm.inexact`) or a fixed number in
-            (0, 1) (also set by ``ksp_rtol`` in ``petsc_options``; not both).
         petsc_options: Options of the step-1 solver (MUMPS Cholesky, or with an
-            iterative step 1 CG + GAMG, by default); also of the inner factorisations
-            of r* when they describe a factorisation.
+            iterative step 1 CG + GAMG, by default; ``ksp_rtol`` fixes an iterative step
+            1's tolerance, which otherwise follows the outer residual by the inexact rule
+            of :mod:`admm_dolfinx.admm.inexact`); also of the inner factorisations of r*
+            when they describe a factorisation.
         petsc_options_prefix: The solver's options prefix (see :attr:`prefixes`).
     """
 
@@ -191,32 +278,27 @@ class ADMMSettings:
     polish: bool | None = None
     polish_rounds: int = 10
     step1: str = "auto"
-    step1_rtol: float | str = "auto"
     petsc_options: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
     petsc_options_prefix: str = DEFAULT_PREFIX
 
     @classmethod
-    def names(cls) -> tuple[str, ...]:
-        """The setting names."""
-        return tuple(f.name for f in fields(cls))
-
-    @classmethod
-    def create(cls, **given: Any) -> ADMMSettings:
+    def create(cls, *, expert: Mapping[str, Any] | None = None, **given: Any) -> ADMMSettings:
         """Validated settings from the given values, the mode's preset and the defaults.
 
+        Args:
+            expert: Values of :data:`EXPERT_SETTINGS`, by name.
+            **given: Values of :data:`USER_SETTINGS`, by name.
+
         Raises:
-            TypeError: For an unknown name (the closest known ones are named) or a value
-                of the wrong type.
+            TypeError: For an unknown or removed name (the spelling to use is named), an
+                expert setting passed on its own, or a value of the wrong type.
             ValueError: For a value out of range, or one that conflicts with the mode.
         """
-        unknown = [name for name in given if name not in cls.names()]
-        if unknown:
-            hints = {n: difflib.get_close_matches(n, cls.names(), n=2) for n in unknown}
-            text = "; ".join(
-                f"{n!r}" + (f" (did you mean {' or '.join(map(repr, h))}?)" if h else "")
-                for n, h in hints.items()
-            )
-            raise TypeError(f"Unknown ADMM setting(s): {text}. Known: {', '.join(cls.names())}.")
+        return cls._from_values(_flatten(given, expert))
+
+    @classmethod
+    def _from_values(cls, given: dict[str, Any]) -> ADMMSettings:
+        """Validated settings from every setting's value by name (None: not given)."""
         # None is "not given" (the default or the preset's value)
         given = {k: v for k, v in given.items() if v is not None}
         mode = _choice("mode", given.get("mode", "accelerated"), MODES)
@@ -224,10 +306,11 @@ class ADMMSettings:
         for name in FIXED_BY[mode]:
             automatic = name == "penalty_metric" and given.get(name) == "auto"
             if name in given and given[name] != preset[name] and not automatic:
+                spelled = f"{name}=" if name in USER_SETTINGS else f"expert {name}="
                 raise ValueError(
                     f"mode={mode!r} fixes {name} = {preset[name]!r} (it is the paper's "
-                    f"algorithm); you also passed {name}={given[name]!r}. Drop one of them: "
-                    "for other values use mode='accelerated'."
+                    f"algorithm); you also passed {spelled}{given[name]!r}. Drop one of "
+                    "them: for other values use mode='accelerated'."
                 )
         values = {**preset, **given, "mode": mode}
         if mode == "paper" and values["penalty_metric"] == "auto":
@@ -282,11 +365,10 @@ class ADMMSettings:
         if not isinstance(options, Mapping):
             raise TypeError(f"petsc_options must be a mapping of PETSc options, got {options!r}.")
         step1 = _choice("step1", values.get("step1", "auto"), _STEP1)
-        step1_rtol = values.get("step1_rtol", "auto")
-        if not (isinstance(step1_rtol, str) and step1_rtol == "auto"):
-            step1_rtol = _real("step1_rtol", step1_rtol)
-            if not 0.0 < step1_rtol < 1.0:
-                raise ValueError(f"step1_rtol must lie in (0, 1) or be 'auto', got {step1_rtol}.")
+        if "ksp_rtol" in options:
+            ksp_rtol = _real("petsc_options ksp_rtol", options["ksp_rtol"])
+            if not 0.0 < ksp_rtol < 1.0:
+                raise ValueError(f"petsc_options ksp_rtol must lie in (0, 1), got {ksp_rtol}.")
         krylov = options.get("ksp_type", "preonly") != "preonly"
         direct = options.get("pc_type", "cholesky") in _DIRECT_PCS
         if not krylov and not direct:
@@ -306,15 +388,11 @@ class ADMMSettings:
                 "step1='iterative' conflicts with petsc_options ksp_type='preonly' (a "
                 "direct solve): drop one of them."
             )
-        if step1_rtol != "auto" and "ksp_rtol" in options:
+        if "ksp_rtol" in options and not (step1 == "iterative" or krylov):
             raise ValueError(
-                f"step1_rtol={step1_rtol} and petsc_options ksp_rtol={options['ksp_rtol']} "
-                "both set the step-1 tolerance: drop one of them."
-            )
-        if step1_rtol != "auto" and step1 == "factorised":
-            raise ValueError(
-                "step1_rtol is the tolerance of an iterative step 1; step1='factorised' "
-                "solves exactly: drop step1_rtol."
+                "petsc_options ksp_rtol is the tolerance of an iterative step 1, and this "
+                f"step 1 (step1={step1!r}, no ksp_type) may be factorised, which solves "
+                "exactly: pass step1='iterative' with it, or drop ksp_rtol."
             )
         settings = cls(
             penalty=penalty,
@@ -334,7 +412,6 @@ class ADMMSettings:
             polish=_switch("polish", values["polish"]),
             polish_rounds=polish_rounds,
             step1=step1,
-            step1_rtol=step1_rtol,
             petsc_options=MappingProxyType(dict(options)),
             petsc_options_prefix=prefix,
         )
@@ -346,8 +423,9 @@ class ADMMSettings:
         if self.step1 == "iterative":
             for name in ("condensed", "polish"):
                 if getattr(self, name) is True:
+                    spelled = "polish=True" if name == "polish" else "expert condensed=True"
                     raise ValueError(
-                        f"{name}=True needs the Schur complement from a factorisation; "
+                        f"{spelled} needs the Schur complement from a factorisation; "
                         "step1='iterative' has none: drop one of them."
                     )
         if self.penalty_metric == "surface":
@@ -357,24 +435,36 @@ class ADMMSettings:
             ):
                 if failed:
                     raise ValueError(
-                        f"penalty_metric='surface' {reason} (or pass penalty_metric='mass')."
+                        f"expert penalty_metric='surface' {reason} (or pass "
+                        "expert={'penalty_metric': 'mass'})."
                     )
         if not auto and self.penalty_method != "auto":
             raise ValueError(
-                f"penalty_method={self.penalty_method!r} chooses how r* is computed, but the "
-                f"penalty is given (r = {self.penalty}): pass penalty='auto' or drop "
+                f"expert penalty_method={self.penalty_method!r} chooses how r* is computed, "
+                f"but the penalty is given (r = {self.penalty}): pass penalty='auto' or drop "
                 "penalty_method."
             )
 
-    def replace(self, **changes: Any) -> ADMMSettings:
-        """A validated copy with some settings changed (``kkt_tol`` follows a new rtol)."""
+    def replace(self, *, expert: Mapping[str, Any] | None = None, **changes: Any) -> ADMMSettings:
+        """A validated copy with some settings changed (``kkt_tol`` follows a new rtol).
+
+        Args:
+            expert: New values of :data:`EXPERT_SETTINGS` (the others are kept).
+            **changes: New values of :data:`USER_SETTINGS`.
+        """
+        changes = _flatten(changes, expert)
         current = {f.name: getattr(self, f.name) for f in fields(self)}
         if "rtol" in changes or "stopping" in changes:
             current.pop("kkt_tol")
         if "mode" in changes:  # a new preset: keep only what is not the old preset's
             for name in PRESETS[self.mode]:
                 current.pop(name, None)
-        return ADMMSettings.create(**{**current, **changes})
+        return ADMMSettings._from_values({**current, **changes})
+
+    @property
+    def expert(self) -> dict[str, Any]:
+        """The values of :data:`EXPERT_SETTINGS`, by name."""
+        return {name: getattr(self, name) for name in EXPERT_SETTINGS}
 
     @property
     def prefixes(self) -> dict[str, str]:
@@ -399,9 +489,10 @@ class ADMMSettings:
         }
 
     def as_dict(self) -> dict[str, Any]:
-        """Plain values (for JSON and reports)."""
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        """Plain values (for JSON and reports): the user's settings, then ``expert``."""
+        out = {name: getattr(self, name) for name in USER_SETTINGS}
         out["petsc_options"] = dict(self.petsc_options)
+        out["expert"] = self.expert
         return out
 
     def check_same_on_every_rank(self, comm: Any) -> None:

@@ -67,7 +67,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -166,10 +166,10 @@ class ADMMSolver:
         problem: The contact problem.
         settings: An :class:`~admm_dolfinx.admm.settings.ADMMSettings` (the keyword
             options, if any, are applied on top of it).
-        **options: Settings by name (``penalty``, ``mode``, ``rtol``, ``kkt_tol``,
-            ``max_iter``, ``alpha``, ``anderson``, ``stopping``, ``penalty_method``,
-            ``penalty_tol``, ``penalty_metric``, ``condensed``, ``polish``,
-            ``polish_rounds``, ``petsc_options``, ``petsc_options_prefix``): see
+        **options: The settings a user sets, by name (``penalty``, ``mode``, ``rtol``,
+            ``max_iter``, ``polish``, ``step1``, ``petsc_options``,
+            ``petsc_options_prefix``), and ``expert={...}`` for the algorithm's knobs
+            (:data:`~admm_dolfinx.admm.settings.EXPERT_SETTINGS`): see
             :class:`~admm_dolfinx.admm.settings.ADMMSettings` for each, its default and
             its range.
 
@@ -367,16 +367,18 @@ class ADMMSolver:
         if self.polisher is not None:
             self.polisher.set_penalty(r)
 
-    def update_settings(self, **changes: Any) -> None:
+    def update_settings(self, *, expert: Mapping[str, Any] | None = None, **changes: Any) -> None:
         """Change settings of the iteration between solves (OSQP's verb).
 
-        Only :data:`ITERATION_SETTINGS` can change: the others set r, the factors or
-        the plan (build a new solver for them).
+        Only :data:`ITERATION_SETTINGS` can change (``rtol`` and ``max_iter`` by name,
+        the others in ``expert``): the rest set r, the factors or the plan (build a new
+        solver for them).
 
         Raises:
             ValueError: For another setting, or an invalid value.
+            TypeError: For a name spelled as it is not passed (see ``ADMMSettings``).
         """
-        fixed = [name for name in changes if name not in ITERATION_SETTINGS]
+        fixed = [name for name in (*changes, *(expert or {})) if name not in ITERATION_SETTINGS]
         if fixed:
             raise ValueError(
                 f"update_settings changes {ITERATION_SETTINGS} only; {fixed} set r, the "
@@ -384,7 +386,7 @@ class ADMMSolver:
             )
         settings = collective_call(
             self.problem.comm,
-            lambda: self.settings.replace(**changes),
+            lambda: self.settings.replace(expert=expert, **changes),
             "Validating the solver's settings",
         )
         settings.check_same_on_every_rank(self.problem.comm)
@@ -507,7 +509,7 @@ class ADMMSolver:
         inexact = None
         last_residual: float | None = None
         if isinstance(step1, IterativeOperator):
-            fixed = self.plan.inner_rtol
+            fixed = self.plan.ksp_rtol
             inexact = InexactRule(fixed if isinstance(fixed, float) else None)
             work_before = (step1.iterations, step1.solves, step1.unconverged, step1.solve_time)
 

@@ -190,7 +190,7 @@ class SurfaceProjection(PetscOwner):
         raise RuntimeError(
             f"the active-set method did not settle in {MAX_ACTIVE_SET_ROUNDS} rounds "
             "(M + βL_Γ is not an M-matrix on this surface mesh); pass "
-            "penalty_metric='mass' to ADMMSolver"
+            "expert={'penalty_metric': 'mass'} to ADMMSolver"
         )
 
     def __call__(

@@ -269,7 +269,7 @@ def _layer_eigenvalue(penalty, stiffness, start, prefix, petsc_options):
         return top_eigenpair(
             eps,
             "SLEPc did not converge to the largest eigenvalue of the surface-metric pencil "
-            "on a layer along the contact boundary. Pass penalty_metric='mass'",
+            "on a layer along the contact boundary. Pass expert={'penalty_metric': 'mass'}",
         )
     finally:
         eps.destroy()

@@ -108,8 +108,8 @@ def sample_penalty(
         max_iter: ADMM iteration cap per sample.
         petsc_options: Options of the step-1 solver.
         progress: Called as ``progress(k, n, r, iterations)`` after each sample.
-        **solver_options: More :class:`~admm_dolfinx.ADMMSolver` options (``alpha``,
-            ``anderson``, ``stopping``; ``polish`` is off unless given, so that the
+        **solver_options: More :class:`~admm_dolfinx.ADMMSolver` options (e.g.
+            ``expert={"alpha": 1.6}``; ``polish`` is off unless given, so that the
             counts are those of the ADMM iteration at each r).
 
     Returns:
@@ -137,6 +137,7 @@ def sample_penalty(
     serial = problem.comm.size == 1
     condensed = True if serial and condensed_factor_applies(problem, petsc_options) else None
     solver_options.setdefault("polish", False)
+    expert = {**dict(solver_options.pop("expert", None) or {}), "condensed": condensed}
     # a sweep samples poor penalties on purpose: their slow solves are its data, not
     # news (the counts are returned), so the solver's slow-convergence warning is muted
     with (
@@ -144,7 +145,7 @@ def sample_penalty(
         ADMMSolver(
             problem,
             penalty=float(r_values[0]),
-            condensed=condensed,
+            expert=expert,
             mode=mode,
             rtol=rtol,
             max_iter=max_iter,
