@@ -239,3 +239,28 @@ def test_floating_3d_plans_are_consistent(floating):
         plan = make_plan(floating, ADMMSettings.create(**options))
         assert (plan.polish, plan.metric, plan.penalty) == (polish, metric, penalty), options
         assert plan.step1 == ("condensed" if serial and metric == "mass" else "factorised")
+
+
+def test_petsc_options_configure_step1_only(monkeypatch):
+    """The user's petsc_options reach the step-1 solver and no inner solver: those take
+    their defaults and their own prefix (they used to take the step-1 options too)."""
+    from admm_dolfinx.linalg import petsc as petsc_helpers
+
+    applied: list[tuple[str, dict]] = []
+    original = petsc_helpers.apply_options
+
+    def recording(obj, prefix, options, **kwargs):
+        applied.append((prefix, dict(options or {})))
+        return original(obj, prefix, options, **kwargs)
+
+    monkeypatch.setattr(petsc_helpers, "apply_options", recording)
+    problem = example3(MPI.COMM_WORLD, level=0).problem()
+    mine = {"mat_mumps_icntl_14": 80}
+    with ADMMSolver(problem, step1="factorised", petsc_options=mine) as solver:
+        prefixes = solver.settings.prefixes
+    step1 = [options for prefix, options in applied if prefix == prefixes["step1"]]
+    inner = [(prefix, options) for prefix, options in applied if prefix != prefixes["step1"]]
+    assert step1 and all(options.items() >= mine.items() for options in step1)
+    # the default 3D path factorises layers along Γ_C for r*: with their defaults
+    assert any(prefix.startswith(prefixes["penalty"]) and options for prefix, options in inner)
+    assert not [prefix for prefix, options in inner if "mat_mumps_icntl_14" in options]

@@ -86,8 +86,6 @@ class SolverPlan:
         metric: ``"mass"`` or ``"surface"``.
         private_schur: A condensed factorisation is made for r* and polishing only
             (freed once S_C is read): step 1 factorises A + rK.
-        factor_options: The options the inner factorisations take (the step-1 options
-            if they describe a MUMPS factorisation, else None: the defaults).
         step1_options: The options of the step-1 solver.
         ksp_rtol: The tolerance of an iterative step 1: ``"auto"`` (the inexact rule,
             tied to the outer residual), a number (``petsc_options["ksp_rtol"]``), or
@@ -101,7 +99,6 @@ class SolverPlan:
     polish: str
     metric: str
     private_schur: bool
-    factor_options: dict | None
     step1_options: dict
     ksp_rtol: str | float | None
     reasons: tuple[str, ...]
@@ -231,7 +228,6 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         polish=polish,
         metric=metric,
         private_schur=bool(schur and not condensed),
-        factor_options=options if factor else None,
         # reading inverse entries under MPI needs a centralised right-hand side
         step1_options=(
             {**options, **CENTRALISED_RHS} if polish == "inverse" and not serial else options

@@ -258,8 +258,9 @@ class ADMMSettings:
         petsc_options: Options of the step-1 solver (MUMPS Cholesky, or with an
             iterative step 1 CG + GAMG, by default; ``ksp_rtol`` fixes an iterative step
             1's tolerance, which otherwise follows the outer residual by the inexact rule
-            of :mod:`admm_dolfinx.admm.inexact`); also of the inner factorisations of r*
-            when they describe a factorisation.
+            of :mod:`admm_dolfinx.admm.inexact`). Step 1 only: each inner solver (r*,
+            the Schur complement, polishing, the surface metric) takes its defaults and
+            the PETSc options database under its own prefix (:attr:`prefixes`).
         petsc_options_prefix: The solver's options prefix (see :attr:`prefixes`).
     """
 

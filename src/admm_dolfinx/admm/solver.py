@@ -250,7 +250,7 @@ class ADMMSolver:
                 self.operator = PenalisedOperator(problem, prefixes["step1"], plan.step1_options)
             schur_source = self.operator if plan.step1 == "condensed" else None
             if plan.private_schur:  # S_C for r* and polishing; freed once read
-                private = CondensedOperator(problem, prefixes["schur"], s.petsc_options)
+                private = CondensedOperator(problem, prefixes["schur"], None)
                 schur_source = private
             if plan.polish == "dense":
                 self.polisher = ActiveSetPolish.from_operator(
@@ -261,7 +261,7 @@ class ADMMSolver:
                     problem, self.operator, rounds=s.polish_rounds
                 )
             elif plan.polish == "sparse":
-                self.polisher = SparsePolish(problem, prefixes["polish"], plan.factor_options)
+                self.polisher = SparsePolish(problem, prefixes["polish"], None)
             self._time_schur = private.timings["factorization"] if private else 0.0
             penalty = s.penalty  # a number unless "auto" (then r* or the surface r below)
             multigrid = None
@@ -282,7 +282,7 @@ class ADMMSolver:
                 # a condensed operator gives r* densely and serves the ADMM at r*; a
                 # factorised one shares its symbolic analysis with r*'s factorisations
                 shared = schur_source or (
-                    self.operator if plan.factor_options is not None else None
+                    self.operator if plan.step1 == "factorised" else None
                 )
                 assert plan.penalty_tol is not None  # resolved whenever r* is computed
                 self.penalty_estimate = estimate_penalty(
@@ -290,7 +290,6 @@ class ADMMSolver:
                     tol=plan.penalty_tol,
                     method=plan.penalty,
                     operator=shared,
-                    petsc_options=plan.factor_options,
                     petsc_options_prefix=prefixes["penalty"],
                     multigrid=multigrid,
                     # the surface metric uses λ_min for β alone, which needs less
@@ -309,7 +308,6 @@ class ADMMSolver:
                     self._metric,
                     self.penalty_estimate,
                     prefix=prefixes["surface"],
-                    petsc_options=plan.factor_options,
                 )
                 beta = self.surface_penalty.beta
                 operator.use_penalty_matrix(self._metric.penalty_matrix(beta), "Nᵀ(M + βL_Γ)N")
