@@ -293,11 +293,11 @@ def test_reproduce_logs_nothing_but_its_own_progress(package_log, tmp_path_facto
 
 def test_a_long_solve_reports_progress(package_log, monkeypatch):
     """A progress line at INFO every PROGRESS_SECONDS (here every iteration)."""
-    import admm_dolfinx.admm.solver as solver_module
+    import admm_dolfinx.admm.iteration as iteration_module
     from admm_dolfinx import ADMMSolver
     from admm_dolfinx.scenes import example1
 
-    monkeypatch.setattr(solver_module, "PROGRESS_SECONDS", 0.0)
+    monkeypatch.setattr(iteration_module, "PROGRESS_SECONDS", 0.0)
     logging.getLogger("admm_dolfinx").setLevel(logging.INFO)
     with package_log.at_level(logging.INFO), ADMMSolver(example1(h=0.125).problem()) as s:
         result = s.solve()

@@ -45,11 +45,11 @@ def _progress_lines(monkeypatch, configure):
     import logging
     import sys
 
-    import admm_dolfinx.admm.solver as solver_module
+    import admm_dolfinx.admm.iteration as iteration_module
 
     terminal = _Terminal()
     monkeypatch.setattr(sys, "stderr", terminal)
-    monkeypatch.setattr(solver_module, "PROGRESS_SECONDS", 0.0)
+    monkeypatch.setattr(iteration_module, "PROGRESS_SECONDS", 0.0)
     root, package = logging.getLogger(), logging.getLogger("admm_dolfinx")
     monkeypatch.setattr(root, "handlers", [])  # a plain script: nothing configured
     monkeypatch.setattr(package, "level", logging.NOTSET)

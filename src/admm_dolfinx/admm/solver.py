@@ -65,7 +65,6 @@ the callback, which says so (``status="callback"``, ``converged=False``).
 
 from __future__ import annotations
 
-import logging
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -77,16 +76,15 @@ from dolfinx.common import Timer
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from admm_dolfinx._logging import get_logger, progress, speaking_for
+from admm_dolfinx._logging import get_logger, speaking_for
 from admm_dolfinx._mpi import agree, collective_call
 from admm_dolfinx._threads import share_cores
-from admm_dolfinx.admm.anderson import AndersonMixer
-from admm_dolfinx.admm.inexact import InexactRule
+from admm_dolfinx.admm.iteration import Iteration
 from admm_dolfinx.admm.messages import failure_message, slow_convergence_warning
 from admm_dolfinx.admm.plan import SolverPlan, make_plan
 from admm_dolfinx.admm.polish_dense import ActiveSetPolish
 from admm_dolfinx.admm.polish_sparse import SparsePolish
-from admm_dolfinx.admm.residuals import HISTORY_KEYS, IterationResiduals, ResidualMeter
+from admm_dolfinx.admm.residuals import IterationResiduals
 from admm_dolfinx.admm.result import (
     ADMMConvergenceError,
     ADMMResult,
@@ -117,14 +115,6 @@ from admm_dolfinx.problem.resolution import assess_resolution
 __all__ = ["ADMMConvergenceError", "ADMMResult", "ADMMSolver"]
 
 logger = get_logger(__name__)
-
-#: ``history["accelerated"]`` codes: what the evaluated state was.
-_REJECTED, _PLAIN, _ANDERSON, _POLISHED = -1, 0, 1, 2
-_NOTES = {_PLAIN: "", _ANDERSON: " (Anderson)", _POLISHED: " (polished)"}
-#: Seconds between the progress lines of a long solve (logged at INFO, or shown in a
-#: terminal where logging is not set up: :func:`admm_dolfinx._logging.progress`; every
-#: iteration is logged at DEBUG).
-PROGRESS_SECONDS = 10.0
 
 
 @dataclass(frozen=True)
@@ -281,9 +271,7 @@ class ADMMSolver:
             if plan.penalty != "given":
                 # a condensed operator gives r* densely and serves the ADMM at r*; a
                 # factorised one shares its symbolic analysis with r*'s factorisations
-                shared = schur_source or (
-                    self.operator if plan.step1 == "factorised" else None
-                )
+                shared = schur_source or (self.operator if plan.step1 == "factorised" else None)
                 assert plan.penalty_tol is not None  # resolved whenever r* is computed
                 self.penalty_estimate = estimate_penalty(
                     problem,
@@ -500,141 +488,53 @@ class ADMMSolver:
         """:meth:`solve`'s work (its log on rank 0 of the problem's communicator)."""
         self._prepare()
         t_start = time.perf_counter()
-        s, problem, c = self.settings, self.problem, self.problem.contact
-        r, alpha, g, m = self.penalty, s.alpha, c.gap, c.gap.size
-        step, polisher, step1 = self._step, self.polisher, self._step1
-        # an iterative step 1: the inexact ADMM's inner tolerances, and its work so far
-        inexact = None
-        last_residual: float | None = None
-        if isinstance(step1, IterativeOperator):
-            fixed = self.plan.ksp_rtol
-            inexact = InexactRule(fixed if isinstance(fixed, float) else None)
-            work_before = (step1.iterations, step1.solves, step1.unconverged, step1.solve_time)
-
-        u = fem.Function(problem.V, name="displacement")
-        x = u.x.petsc_vec
-        u_start, b0, b = (problem.create_vector() for _ in range(3))
-        problem.assemble_rhs(r, b0)
-        step.reset(g, b0, b, r)
-        if warm_start is None:
-            u_start.set(0.0)
-            z = np.concatenate([np.minimum(0.0, g), np.zeros(m)])  # state (p, λ)
-        else:
-            z = self._warm_state(warm_start, u_start)
-            if inexact is not None:
-                # the first inner solve as tight as the end of that solve: a loose one
-                # would throw a warm start at a fixed point away; after a load step it
-                # only asks more of the first (warm-started) CG solve than needed
-                if isinstance(warm_start, ADMMResult):  # a WarmStart has no history
-                    last_residual = _final_residual(warm_start)
-        if polisher is not None:
-            polisher.reset()
-        lam = z[m:]
-        meter = ResidualMeter(problem, r, u_start, z[:m])
-        mixer = AndersonMixer(s.anderson, meter.weights, problem.comm) if s.anderson else None
-        history: dict[str, list[float]] = {key: [] for key in (*HISTORY_KEYS, "accelerated")}
-        status, kkt, iterations, polished_at = "max_iter", None, 0, None
-        accepted: tuple[np.ndarray, float] | None = None  # (T(z), residual) last accepted
-        proposal = _PLAIN  # what z is: a plain step, or an Anderson or polished proposal
-        logger.debug("ADMM: m = %d contact nodes, r = %.6g", c.num_global, r)
-        self._next_progress = time.perf_counter() + PROGRESS_SECONDS
+        s, problem = self.settings, self.problem
+        m, r = problem.num_contact_nodes, self.penalty
+        logger.debug("ADMM: m = %d contact nodes, r = %.6g", m, r)
+        u_start = problem.create_vector()
+        try:
+            z, previous_residual = self._start(warm_start, u_start)
+            run = Iteration(self, z, u_start, previous_residual)
+        finally:
+            u_start.destroy()
+        status, kkt = "max_iter", None
         try:
             with Timer("admm_dolfinx: iterations"):
                 t0 = time.perf_counter()
                 for k in range(1, s.max_iter + 1):
-                    iterations = k
-                    p_in, lam_in = z[:m], z[m:]
-                    # step 1: (A + NᵀRN) u = f + Nᵀ(R p − M λ)
-                    b0.copy(b)
-                    problem.add_normal_force(b, r * p_in - lam_in)
-                    step.add_force(b, p_in, r)
-                    if inexact is not None:
-                        assert isinstance(step1, IterativeOperator)
-                        step1.set_tolerance(inexact.tolerance(k, last_residual))
-                    step1.solve(b, x)
-                    nu = problem.apply_normal(x)
-                    # steps 2-3, with over-relaxation
-                    p, lam, d = step(alpha * nu + (1.0 - alpha) * p_in, lam_in, p_in, nu, r)
-                    Tz = np.concatenate([p, lam])
-                    residuals = meter.measure(x, z, Tz, nu, d)
-                    last_residual = residuals.fpr
-                    # safeguard: an extrapolated state must lower the fixed-point residual
-                    # (written as "not <" so that a NaN residual is rejected too)
-                    res = residuals.res
-                    rejected = proposal != _PLAIN and accepted is not None and not res < accepted[1]
-                    if proposal == _POLISHED and not rejected:
-                        polished_at = k
-                    self._record(history, k, residuals, _REJECTED if rejected else proposal)
+                    residuals = run.evaluate(k)
                     if residuals.meets(s.stopping, s.rtol):
-                        # the test's residuals rest on identities that assume exact
-                        # step-1 solves: confirm them independently before stopping
-                        kkt = compute_kkt_residuals(problem, x, lam)
-                        status = self._verdict(kkt, residuals)
-                        if status == "inexact_step1" and inexact and inexact.tighten():
-                            logger.info(
-                                "ADMM %4d: test met, but the step-1 error shows in the "
-                                "recomputed KKT %.2e: tighter inner tolerances",
-                                k,
-                                kkt.max(),
-                            )
-                            status = "continue"
+                        status, kkt = self._confirm(run, k, residuals)
                         if status != "continue":
                             break
-                        logger.info("ADMM %4d: test met, recomputed KKT %.2e: on", k, kkt.max())
                         status, kkt = "max_iter", None  # unless a later iteration stops
-                    if callback is not None and self._ask_callback(callback, k, x, lam):
+                    if callback is not None and self._ask_callback(
+                        callback, k, run.u.x.petsc_vec, run.multiplier
+                    ):
                         status = "callback"
                         break
-                    if rejected:
-                        assert accepted is not None  # a proposal is judged against it
-                        z, proposal = accepted[0].copy(), _PLAIN  # the plain step instead
-                        continue
-                    accepted, proposal, z = (Tz, res), _PLAIN, Tz
-                    if mixer is not None:
-                        candidate = mixer.update(np.concatenate([p_in, lam_in]), Tz)
-                        if candidate is not None:
-                            candidate[:m] = np.minimum(candidate[:m], g)
-                            candidate[m:] = np.maximum(candidate[m:], 0.0)
-                            z, proposal = candidate, _ANDERSON
-                    if polisher is not None and polished_at is None:
-                        budget = time.perf_counter() - t0 - polisher.time
-                        exact = polisher.attempt(nu, r * p_in - lam_in, lam > 0.0, budget)
-                        if exact is not None:
-                            z, proposal = np.concatenate(exact), _POLISHED
+                    run.advance()
                 t_iter = time.perf_counter() - t0
-            u.x.scatter_forward()
+            run.u.x.scatter_forward()
             t0 = time.perf_counter()
             if kkt is None:
-                kkt = compute_kkt_residuals(problem, x, lam)
+                kkt = compute_kkt_residuals(problem, run.u.x.petsc_vec, run.multiplier)
             t_kkt = time.perf_counter() - t0
         finally:
-            meter.destroy()
-            for vec in (u_start, b0, b):
-                vec.destroy()
-        step1_info = None
-        if inexact is not None:
-            assert isinstance(step1, IterativeOperator)
-            step1_info = Step1Info(
-                krylov_iterations=step1.iterations - work_before[0],
-                solves=step1.solves - work_before[1],
-                unconverged=step1.unconverged - work_before[2],
-                last_rtol=step1.rtol,
-                tightened=inexact.tightened,
-                time=step1.solve_time - work_before[3],
-            )
+            run.destroy()
         result = self._result(
             _LoopOutcome(
-                u=u,
-                multiplier=lam,
+                u=run.u,
+                multiplier=run.multiplier,
                 status=status,
-                iterations=iterations,
-                history=history,
+                iterations=run.iterations,
+                history=run.history,
                 kkt=kkt,
-                polished_at=polished_at,
+                polished_at=run.polished_at,
                 iteration_time=t_iter,
                 kkt_time=t_kkt,
                 started=t_start,
-                step1=step1_info,
+                step1=run.step1_info(),
             )
         )
         if result.warning:
@@ -644,34 +544,44 @@ class ADMMSolver:
         logger.debug("%s", result.summary())
         return result
 
-    # ------------------------------------------------------------ the loop's parts
-    def _record(self, history: dict, k: int, residuals: IterationResiduals, what: int) -> None:
-        """Keep one iteration's residuals in the history, and log them."""
-        for key in HISTORY_KEYS:
-            history[key].append(getattr(residuals, key))
-        history["accelerated"].append(what)
-        # every iteration at DEBUG; at INFO (progress) one line every PROGRESS_SECONDS
-        now = time.perf_counter()
-        level = logging.INFO if now >= self._next_progress else logging.DEBUG
-        if level == logging.INFO:
-            self._next_progress = now + PROGRESS_SECONDS
-        line = (
-            "ADMM %4d: fpr %.2e feas %.2e comp %.2e eq %.2e bal %.2e du %.2e dp %.2e active %d%s",
-            k,
-            residuals.fpr,
-            residuals.feasibility,
-            residuals.complementarity,
-            residuals.equilibrium,
-            residuals.force_balance,
-            residuals.du,
-            residuals.dp,
-            residuals.active,
-            " (proposal rejected)" if what == _REJECTED else _NOTES[what],
-        )
-        if level == logging.INFO:
-            progress(logger, *line)  # a terminal sees it even with logging unset
-        else:
-            logger.debug(*line)
+    def _start(
+        self, warm_start: ADMMResult | WarmStart | None, u_start: PETSc.Vec
+    ) -> tuple[np.ndarray, float | None]:
+        """z⁰ = (p⁰, λ⁰), u⁰ into ``u_start``, and a warm start's last residual; collective.
+
+        The residual (None from scratch) sets an iterative step 1's first tolerance.
+        """
+        gap = self.problem.contact.gap
+        if warm_start is None:
+            u_start.set(0.0)
+            return np.concatenate([np.minimum(0.0, gap), np.zeros(gap.size)]), None
+        z = self._warm_state(warm_start, u_start)
+        # an iterative step 1 starts as tight as that solve ended: a loose first solve
+        # would throw a warm start at a fixed point away (a WarmStart has no history)
+        previous = _final_residual(warm_start) if isinstance(warm_start, ADMMResult) else None
+        return z, previous
+
+    def _confirm(
+        self, run: Iteration, k: int, residuals: IterationResiduals
+    ) -> tuple[str, KKTResiduals]:
+        """A met stopping test, checked by KKT residuals recomputed from (u, λ); collective.
+
+        Returns:
+            The status (``"continue"``: iterate on) and the recomputed residuals.
+        """
+        kkt = compute_kkt_residuals(self.problem, run.u.x.petsc_vec, run.multiplier)
+        status = self._verdict(kkt, residuals)
+        if status == "inexact_step1" and run.tighten():
+            logger.info(
+                "ADMM %4d: test met, but the step-1 error shows in the recomputed KKT "
+                "%.2e: tighter inner tolerances",
+                k,
+                kkt.max(),
+            )
+            status = "continue"
+        if status == "continue":
+            logger.info("ADMM %4d: test met, recomputed KKT %.2e: on", k, kkt.max())
+        return status, kkt
 
     def _result(self, loop: _LoopOutcome) -> ADMMResult:
         """The typed result of a finished loop, with its outputs and warnings; collective."""
