@@ -264,3 +264,18 @@ def test_petsc_options_configure_step1_only(monkeypatch):
     # the default 3D path factorises layers along Γ_C for r*: with their defaults
     assert any(prefix.startswith(prefixes["penalty"]) and options for prefix, options in inner)
     assert not [prefix for prefix, options in inner if "mat_mumps_icntl_14" in options]
+
+
+def test_estimate_penalty_alone_chooses_the_solvers_method():
+    """r*'s automatic method has one home: estimate_penalty(problem) on its own picks
+    the method that the solver's plan picks (2D dense, 3D local in the paper's metric)."""
+    from admm_dolfinx.penalty.estimate import estimate_penalty
+
+    for scene, expected in (
+        (example1(MPI.COMM_WORLD, h=1 / 8), "dense"),
+        (example3(MPI.COMM_WORLD, level=0), "local"),
+    ):
+        problem = scene.problem()
+        with ADMMSolver(problem, expert={"penalty_metric": "mass"}) as solver:
+            assert solver.plan.penalty == expected
+        assert estimate_penalty(problem).details["method"] == expected

@@ -37,7 +37,7 @@ from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
 from admm_dolfinx.linalg.mumps_schur import CENTRALISED_RHS
 from admm_dolfinx.linalg.petsc import is_factorisation, iterative_options
 from admm_dolfinx.operators.condensed import condensed_factor_applies
-from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL
+from admm_dolfinx.penalty.estimate import DEFAULT_PENALTY_TOL, automatic_method
 from admm_dolfinx.penalty.surface import SURFACE_PENALTY_TOL
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
@@ -205,8 +205,7 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     else:
         # the surface metric's β and r were calibrated with the local estimate (its
         # λ_min a layer's lower bound), and without polishing S_C would serve r* alone
-        dense = metric == "mass" and condensed_factor_applies(problem, options)
-        penalty = "dense" if schur or dense else "local"
+        penalty = automatic_method(problem, options, schur=schur) if metric == "mass" else "local"
     if (
         penalty == "dense"
         and not schur

@@ -60,7 +60,13 @@ from admm_dolfinx.penalty.lambda_max import (
 from admm_dolfinx.penalty.lambda_min import lambda_min_exact, lambda_min_from_layers
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["DEFAULT_PENALTY_TOL", "PENALTY_METHODS", "PenaltyEstimate", "estimate_penalty"]
+__all__ = [
+    "DEFAULT_PENALTY_TOL",
+    "PENALTY_METHODS",
+    "PenaltyEstimate",
+    "automatic_method",
+    "estimate_penalty",
+]
 
 logger = get_logger(__name__)
 
@@ -202,6 +208,17 @@ def estimate_penalty(
         )
 
 
+def automatic_method(problem: ContactProblem, petsc_options: dict | None, *, schur: bool) -> str:
+    """The r* method that ``method="auto"`` means: the one home of that rule; collective.
+
+    ``"dense"`` (exact) where S_C is at hand (``schur``: a condensed factorisation the
+    solver makes anyway) or cheap to make
+    (:func:`~admm_dolfinx.operators.condensed.condensed_factor_applies`), ``"local"``
+    otherwise.
+    """
+    return "dense" if schur or condensed_factor_applies(problem, petsc_options) else "local"
+
+
 def _check_arguments(
     tol, max_it, method, petsc_options, petsc_options_prefix, lambda_min_tol, lambda_min_rings
 ) -> None:
@@ -244,8 +261,7 @@ def _estimate(
     t_start = time.perf_counter()
     shared_condensed = isinstance(operator, CondensedOperator)
     if method == "auto":
-        dense = shared_condensed or condensed_factor_applies(problem, petsc_options)
-        method = "dense" if dense else "local"
+        method = automatic_method(problem, petsc_options, schur=shared_condensed)
     if method == "dense":
         condensed = operator if shared_condensed else None
         lambda_min, lambda_max, details = dense_extremes(problem, condensed, prefix, petsc_options)
