@@ -103,8 +103,10 @@ def test_attempt_gives_the_exact_state_from_the_true_active_set():
 
 
 @pytest.mark.parametrize("kind", ["dense", "sparse"])
-def test_a_walk_cut_short_by_its_round_limit_is_resumed(kind):
+def test_a_walk_cut_short_by_its_round_limit_is_resumed(kind, monkeypatch):
     """Attempts that join a walk stopped by its round limit go on where it stopped.
+
+    (The walk alone: the dense polisher's refinement of the guess on Γ_C is off.)
 
     The corrections depend on the active set alone, so attempts of one round each,
     all from the same guess, reach the solution that one long walk reaches, and
@@ -112,6 +114,7 @@ def test_a_walk_cut_short_by_its_round_limit_is_resumed(kind):
     half its error per round: on fine meshes a walk needs more rounds than one attempt
     may take).
     """
+    monkeypatch.setattr(polish_module, "INNER_MAX_ITERATIONS", 0)
     problem = example1(h=1 / 32).problem()
     with ADMMSolver(problem) as solver:
         normal_u, q = _one_step(solver)
@@ -139,8 +142,10 @@ def test_a_walk_cut_short_by_its_round_limit_is_resumed(kind):
                 polisher.destroy()
 
 
-def test_failed_attempts_leave_the_iteration_converging():
-    """One dense solve per guess, no correction: the ADMM carries on until one works."""
+def test_failed_attempts_leave_the_iteration_converging(monkeypatch):
+    """One dense solve per guess, no correction (and no refinement of the guess on
+    Γ_C): the ADMM carries on until one works."""
+    monkeypatch.setattr(polish_module, "INNER_MAX_ITERATIONS", 0)
     problem = example1(h=1 / 32).problem()
     with ADMMSolver(problem) as solver:
         default = solver.solve()
@@ -343,3 +348,52 @@ def test_the_compliance_from_the_inverse_block_sums_node_by_node():
     block = block + block.T
     dense = weights.T @ block @ weights
     assert np.abs(_congruence(block, weights) - dense).max() <= 1e-13 * np.abs(dense).max()
+
+
+def test_the_contact_space_admm_makes_the_full_admms_iterates():
+    """ŷ = t + T M^{½}(r p − λ) is step 1 on Γ_C: from the same state, k iterations of
+    the dense contact-space ADMM equal k iterations of the full ADMM (factorised step 1,
+    the same r and α, no Anderson), to round-off. Checked against the solver's own
+    iterates, recorded by its callback."""
+    if MPI.COMM_WORLD.size > 1:
+        pytest.skip("the dense T lives on rank 0; the solver paths are tested on 2 ranks")
+    problem = example1(h=1 / 16).problem()
+    k = 6
+    expert = {"anderson": 0, "alpha": 1.6}
+    with ADMMSolver(problem, polish=True, expert=expert) as polished:
+        r, polisher = polished.penalty, polished.polisher
+        sq, T, gap = polisher._sqrt_mass, polisher._compliance, problem.contact.gap
+    states = []
+
+    def record(iteration, u, lam):
+        states.append((problem.apply_normal(u), lam.copy()))
+        return iteration == k + 1
+
+    with ADMMSolver(problem, penalty=r, polish=False, expert=expert) as solver:
+        solver.solve(callback=record)
+    # the state after iteration 1: λ¹ and p¹ = min(α N u¹ + (1 − α) p⁰ + λ⁰/r, g)
+    nu1, lam1 = states[0]
+    p1 = np.minimum(1.6 * nu1 + (1.0 - 1.6) * np.minimum(0.0, gap), gap)
+    # t from iteration 2's step 1: N u² = M^{-½}(t + T M^{½}(r p¹ − λ¹))
+    t = sq * states[1][0] - T @ (sq * (r * p1 - lam1))
+    _, lam, iterations = polish_module.contact_space_admm(
+        T, t, sq, gap, r, p1, lam1, stable=None, max_iterations=k
+    )
+    assert iterations == k
+    assert rel_diff(lam, states[k][1]) <= 1e-9
+
+
+@pytest.mark.parametrize("level", [1, 2])
+def test_a_floating_body_is_polished_at_the_second_iteration(level):
+    """Refined on Γ_C first, the guess of a body held by the contact alone is good at
+    once: the default needs two iterations (one to find t, one to check the polished
+    state; ``python benchmarks/polish_3d.py --scene hertz_sphere`` counts them against
+    the walk alone), and the answer is exact."""
+    problem = hertz_sphere(level=level).problem()
+    with ADMMSolver(problem) as solver:
+        result = solver.solve()
+    assert result.polish.polished_at == result.iterations == 2
+    assert result.kkt.max() <= 1e-10
+    with ADMMSolver(problem, polish=False, rtol=1e-11, max_iter=3000) as solver:
+        tight = solver.solve()
+    assert rel_diff(_global(problem, result.multiplier), _global(problem, tight.multiplier)) <= 1e-8

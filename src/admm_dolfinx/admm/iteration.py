@@ -153,8 +153,8 @@ class Iteration:
                 self.z, self.proposal = candidate, ANDERSON
         if self.polisher is not None and self.polished_at is None:
             budget = time.perf_counter() - self._started - self.polisher.time
-            active = self.multiplier > 0.0
-            exact = self.polisher.attempt(self._nu, self.r * p_in - lam_in, active, budget)
+            force = self.r * p_in - lam_in
+            exact = self.polisher.attempt(self._nu, force, self.multiplier, budget)
             if exact is not None:
                 self.z, self.proposal = np.concatenate(exact), POLISHED
 

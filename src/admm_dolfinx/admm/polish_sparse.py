@@ -114,15 +114,15 @@ class SparsePolish:
         self,
         normal_u: npt.NDArray[np.float64],
         force: npt.NDArray[np.float64],
-        guess: npt.NDArray[np.bool_],
+        multiplier: npt.NDArray[np.float64],
         budget: float = math.inf,
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
-        """The exact state (p, λ) for the active set ``guess``, or None; collective.
+        """The exact state (p, λ) for the active set {λ⁺ > 0}, or None; collective.
 
         Args:
             normal_u: N u of a step-1 solve (unused: the solve starts from the load).
             force: Its normal force (unused).
-            guess: The guessed active set (local mask).
+            multiplier: λ⁺ of the same iteration (local): the guess is {λ⁺ > 0}.
             budget: Seconds the caller has spent otherwise: while the polishing time
                 so far exceeds it, the attempt is skipped.
 
@@ -137,7 +137,7 @@ class SparsePolish:
         c = self.problem.contact
         gap = c.gap
         finite = np.isfinite(gap)
-        active = guess & finite
+        active = (multiplier > 0.0) & finite
 
         def step(active):
             nu, lam = self._equality_solution(active)
