@@ -474,7 +474,11 @@ def main():
             for m in (0, 5)
         } | {
             f"alpha 1.6, m 5, polish, rounds {n}": {
-                "mode_options": {"alpha": 1.6, "anderson": 5, "polish": True, "rounds": n}
+                "mode_options": {
+                    "polish": True,
+                    "expert": {"alpha": 1.6, "anderson": 5},
+                    "rounds": n,
+                }
             }
             for n in (1, 3, 30)
         }

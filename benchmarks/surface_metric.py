@@ -27,7 +27,7 @@ the paper's metric by ``benchmarks/acceleration.py --select``).
 
 ``--part speed`` (MPI-capable): Example 3 levels 0-3 and the 257k-dof mesh. For each,
 the default (surface metric), the paper's metric with the same acceleration
-(``penalty_metric="mass"``) and the paper's ADMM at r* run until the error reaches
+(``expert={"penalty_metric": "mass"}``) and the paper's ADMM at r* run until the error reaches
 1e-6 and 1e-8; time = r* (+ β, μ_max) + factorisation + iterations to the error;
 a plain linear-elastic solve of A + r*NᵀMN (factorisation + one solve) in the same
 run gives *contact / plain*. Then the default's growth per halving of h.

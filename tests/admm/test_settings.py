@@ -279,3 +279,19 @@ def test_estimate_penalty_alone_chooses_the_solvers_method():
         with ADMMSolver(problem, expert={"penalty_metric": "mass"}) as solver:
             assert solver.plan.penalty == expected
         assert estimate_penalty(problem).details["method"] == expected
+
+
+def test_a_new_mode_brings_its_own_kkt_tolerance():
+    """replace(mode=...) kept the old mode's kkt_tol: paper → accelerated checked the KKT
+    residuals at 1e-2 while the loop stopped at 1e-6."""
+    from admm_dolfinx.admm.settings import CHANGE_TEST_KKT_TOL
+
+    accelerated = ADMMSettings.create(mode="paper").replace(mode="accelerated")
+    assert accelerated.kkt_tol == accelerated.rtol == ADMMSettings.create().rtol
+    paper = ADMMSettings.create().replace(mode="paper")
+    assert paper.kkt_tol == CHANGE_TEST_KKT_TOL
+    # and a ksp_rtol given as PETSc often takes it, a string, is read as a number
+    iterative = ADMMSettings.create(step1="iterative", petsc_options={"ksp_rtol": "1e-8"})
+    assert iterative.petsc_options["ksp_rtol"] == "1e-8"
+    with pytest.raises(TypeError, match="ksp_rtol must be a number"):
+        ADMMSettings.create(step1="iterative", petsc_options={"ksp_rtol": "tight"})

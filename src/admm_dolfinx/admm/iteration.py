@@ -71,11 +71,16 @@ class Iteration:
         #: The displacement of the last evaluation.
         self.u = fem.Function(problem.V, name="displacement")
         self._b0, self._b = problem.create_vector(), problem.create_vector()
-        problem.assemble_rhs(self.r, self._b0)
-        self.step.reset(problem.contact.gap, self._b0, self._b, self.r)
-        if self.polisher is not None:
-            self.polisher.reset()
-        self.meter = ResidualMeter(problem, self.r, u_start, z[: self.m])
+        try:  # a failure here (collective) frees the work vectors made so far
+            problem.assemble_rhs(self.r, self._b0)
+            self.step.reset(problem.contact.gap, self._b0, self._b, self.r)
+            if self.polisher is not None:
+                self.polisher.reset()
+            self.meter = ResidualMeter(problem, self.r, u_start, z[: self.m])
+        except BaseException:
+            self._b0.destroy()
+            self._b.destroy()
+            raise
         self.mixer = (
             AndersonMixer(s.anderson, self.meter.weights, problem.comm) if s.anderson else None
         )

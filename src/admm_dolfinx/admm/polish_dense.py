@@ -79,7 +79,7 @@ MAX_ROUNDS = 10
 #: Relative tolerance of the sign conditions (λ ≥ 0 on 𝒜, N u ≤ g off it): round-off
 #: of the dense solve, far below any stopping tolerance.
 SIGN_TOL = 1e-10
-#: The contact-space ADMM that refines a failed guess: over-relaxation (the accelerated
+#: The contact-space ADMM that refines every guess before its walk: over-relaxation (the accelerated
 #: preset's), the iterations its active set must stay unchanged, the relative change
 #: of p below which it may stop, and its iteration cap (each costs O(m²)).
 INNER_ALPHA = 1.6
@@ -259,8 +259,9 @@ class ActiveSetPolish:
         Args:
             normal_u: N u of a step-1 solve (local nodal values).
             force: Its q = r p − λ (the normal force of its right-hand side).
-            multiplier: λ⁺ of the same iteration: the guess is {λ⁺ > 0}, and the
-                contact-space ADMM that refines a failed guess starts from it.
+            multiplier: λ⁺ of the same iteration: the contact-space ADMM that refines
+                the guess before the walk starts from it (with the refinement off,
+                ``INNER_MAX_ITERATIONS = 0``, the guess is {λ⁺ > 0} itself).
             budget: Seconds the caller has spent otherwise (its iterations): while the
                 polishing time so far exceeds it, the attempt is skipped (decided on
                 rank 0), so that polishing costs about as much as the iterations at

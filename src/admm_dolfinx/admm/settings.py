@@ -367,7 +367,12 @@ class ADMMSettings:
             raise TypeError(f"petsc_options must be a mapping of PETSc options, got {options!r}.")
         step1 = _choice("step1", values.get("step1", "auto"), _STEP1)
         if "ksp_rtol" in options:
-            ksp_rtol = _real("petsc_options ksp_rtol", options["ksp_rtol"])
+            try:  # PETSc takes option values as strings too
+                ksp_rtol = float(options["ksp_rtol"])
+            except (TypeError, ValueError):
+                raise TypeError(
+                    f"petsc_options ksp_rtol must be a number, got {options['ksp_rtol']!r}."
+                ) from None
             if not 0.0 < ksp_rtol < 1.0:
                 raise ValueError(f"petsc_options ksp_rtol must lie in (0, 1), got {ksp_rtol}.")
         krylov = options.get("ksp_type", "preonly") != "preonly"
@@ -455,8 +460,8 @@ class ADMMSettings:
         """
         changes = _flatten(changes, expert)
         current = {f.name: getattr(self, f.name) for f in fields(self)}
-        if "rtol" in changes or "stopping" in changes:
-            current.pop("kkt_tol")
+        if "rtol" in changes or "stopping" in changes or "mode" in changes:
+            current.pop("kkt_tol")  # it follows the test and tolerance, unless given
         if "mode" in changes:  # a new preset: keep only what is not the old preset's
             for name in PRESETS[self.mode]:
                 current.pop(name, None)
