@@ -101,7 +101,8 @@ def nums(rows: list[dict[str, str]], column: str) -> list[float]:
 
 
 def span(values, fmt: Callable[[float], str]) -> str:
-    return f"{fmt(min(values))}–{fmt(max(values))}"
+    low, high = fmt(min(values)), fmt(max(values))
+    return low if low == high else f"{low}–{high}"
 
 
 def f2(x: float) -> str:
@@ -654,7 +655,7 @@ QUOTES: list[tuple[str, str, Callable[[], list[str]]]] = [
     (
         "acceleration.md",
         "142–239 iterations to 1e-6 with the surface metric. Polishing finds the contact set "
-        "in 2–2",
+        "in 2 iterations on every level",
         lambda: _hertz_sphere_polish()[:2],
     ),
     (

@@ -213,11 +213,12 @@ def test_an_interrupt_in_the_callback_leaves_every_rank(scene):
         {"penalty": 1000.0 * (1 + COMM.rank)},
         {"max_iter": 100 + COMM.rank},
         {"petsc_options": {"mat_mumps_icntl_14": 20 + COMM.rank}},
+        {"expert": {"alpha": 1.2 + 0.1 * COMM.rank}},
     ],
-    ids=["rtol", "penalty", "max_iter", "petsc_options"],
+    ids=["rtol", "penalty", "max_iter", "petsc_options", "expert-alpha"],
 )
 def test_settings_that_differ_between_ranks_are_refused_on_every_rank(scene, per_rank):
-    (name,) = per_rank
+    (name,) = per_rank.get("expert", per_rank)  # an expert setting is named itself
     with pytest.raises(ValueError, match=rf"settings differ between the MPI ranks \(.*{name}: "):
         ADMMSolver(problem_from(scene), **per_rank)
 

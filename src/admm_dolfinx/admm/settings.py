@@ -508,4 +508,6 @@ class ADMMSettings:
             ValueError: On every rank alike, naming each setting that differs (see
                 :func:`admm_dolfinx._mpi.check_same_on_every_rank`).
         """
-        check_same_on_every_rank(comm, self.as_dict(), "The solver's settings")
+        flat = {f.name: getattr(self, f.name) for f in fields(self)}  # each by its name
+        flat["petsc_options"] = dict(self.petsc_options)
+        check_same_on_every_rank(comm, flat, "The solver's settings")

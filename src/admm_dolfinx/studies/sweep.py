@@ -137,7 +137,9 @@ def sample_penalty(
     serial = problem.comm.size == 1
     condensed = True if serial and condensed_factor_applies(problem, petsc_options) else None
     solver_options.setdefault("polish", False)
-    expert = {**dict(solver_options.pop("expert", None) or {}), "condensed": condensed}
+    expert = dict(solver_options.pop("expert", None) or {})
+    if condensed is not None:  # the caller's own choice stands
+        expert.setdefault("condensed", condensed)
     # a sweep samples poor penalties on purpose: their slow solves are its data, not
     # news (the counts are returned), so the solver's slow-convergence warning is muted
     with (
