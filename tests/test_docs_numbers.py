@@ -926,6 +926,20 @@ CONSTANTS: list[tuple[str, str, str, str, dict[str, str] | None]] = [
     ),
     (
         "scale.md",
+        "takes σ = 10⁻² (`SIGMA_HELD`)",
+        "src/admm_dolfinx/admm/inexact.py",
+        r"^SIGMA_HELD = (\S+)$",
+        {"1e-2": "10⁻²"},
+    ),
+    (
+        "scale.md",
+        "keeps σ = 10⁻³ (`SIGMA_FLOATING`)",
+        "src/admm_dolfinx/admm/inexact.py",
+        r"^SIGMA_FLOATING = (\S+)$",
+        {"1e-3": "10⁻³"},
+    ),
+    (
+        "scale.md",
         "`penalty.surface.SURFACE_PENALTY_TOL` = 0.1",
         "src/admm_dolfinx/penalty/surface.py",
         r"^SURFACE_PENALTY_TOL = (\S+)$",

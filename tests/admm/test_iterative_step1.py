@@ -11,8 +11,8 @@ from petsc4py import PETSc
 
 import admm_dolfinx.admm.plan as plan_module
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver
-from admm_dolfinx.admm.inexact import TAU_FLOOR, InexactRule
-from admm_dolfinx.scenes import example1, example3
+from admm_dolfinx.admm.inexact import SIGMA_FLOATING, SIGMA_HELD, TAU_FLOOR, InexactRule
+from admm_dolfinx.scenes import example1, example3, hertz_sphere
 
 pytestmark = pytest.mark.timeout(600)
 
@@ -120,7 +120,7 @@ def test_a_fixed_inner_tolerance_stalls_and_says_so():
 
 
 def test_inexact_rule_is_summable_tied_to_the_residual_and_tightens():
-    rule = InexactRule()
+    rule = InexactRule(sigma=1e-3)
     taus = [rule.tolerance(k, None) for k in range(1, 2000)]
     assert all(b <= a for a, b in itertools.pairwise(taus))
     assert sum(taus) < 0.05  # τ_0 ζ(1.5) < 0.03: summable
@@ -136,6 +136,30 @@ def test_inexact_rule_is_summable_tied_to_the_residual_and_tightens():
         raise AssertionError("the tolerances never reached their floor")
     assert rule.tolerance(3, 1e-3) == TAU_FLOOR and not rule.tighten()
     assert not InexactRule(1e-8).tighten()  # a fixed tolerance stands
+    with pytest.raises(ValueError, match="σ must lie in"):
+        InexactRule(sigma=1.0)
+
+
+def test_the_plan_ties_the_inner_tolerance_to_how_the_body_is_held():
+    """σ of the inexact rule: the looser SIGMA_HELD where Dirichlet conditions hold the
+    body, SIGMA_FLOATING where the contact alone does; the expert value stands; each
+    solve meets the KKT tolerance (the rule's contract, whatever σ)."""
+    assert SIGMA_FLOATING < SIGMA_HELD
+    held = example3(level=1).problem()
+    floating = hertz_sphere(level=0).problem()
+    assert floating.rigid_motions.floating and not held.rigid_motions.floating
+    for problem, sigma in ((held, SIGMA_HELD), (floating, SIGMA_FLOATING)):
+        with ADMMSolver(problem, step1="iterative", polish=False) as solver:
+            assert solver.plan.inner_sigma == sigma
+            assert f"σ = {sigma:g}" in solver.plan.describe()
+            result = solver.solve()
+            assert result.converged and result.kkt.max() <= solver.settings.kkt_tol
+    with ADMMSolver(held, step1="iterative", expert={"inner_sigma": 0.05}) as solver:
+        assert solver.plan.inner_sigma == 0.05 and "σ =" not in solver.plan.describe()
+    with ADMMSolver(held, step1="iterative", petsc_options={"ksp_rtol": 1e-9}) as solver:
+        assert solver.plan.inner_sigma is None  # a fixed tolerance has no rule
+    with ADMMSolver(held, step1="factorised") as solver:
+        assert solver.plan.inner_sigma is None
 
 
 @pytest.mark.parametrize(
@@ -148,6 +172,16 @@ def test_inexact_rule_is_summable_tied_to_the_residual_and_tightens():
         ({"step1": "iterative", "polish": True}, "Schur complement"),
         ({"step1": "direct"}, "step1 must be one of"),
         ({"step1": "iterative", "petsc_options": {"ksp_rtol": 2.0}}, r"\(0, 1\)"),
+        ({"step1": "iterative", "expert": {"inner_sigma": 0.0}}, r"inner_sigma must lie"),
+        (
+            {
+                "step1": "iterative",
+                "petsc_options": {"ksp_rtol": 1e-8},
+                "expert": {"inner_sigma": 0.01},
+            },
+            "ksp_rtol fixes",
+        ),
+        ({"step1": "factorised", "expert": {"inner_sigma": 0.01}}, "has no such rule"),
     ],
 )
 def test_step1_settings_conflicts_raise(given, message):

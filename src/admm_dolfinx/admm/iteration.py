@@ -87,8 +87,12 @@ class Iteration:
         # an iterative step 1: the inexact ADMM's inner tolerances, and its work so far
         self.inexact: InexactRule | None = None
         if isinstance(self.step1, IterativeOperator):
-            fixed = solver.plan.ksp_rtol
-            self.inexact = InexactRule(fixed if isinstance(fixed, float) else None)
+            plan = solver.plan
+            if isinstance(plan.ksp_rtol, float):
+                self.inexact = InexactRule(plan.ksp_rtol)
+            else:
+                assert plan.inner_sigma is not None
+                self.inexact = InexactRule(sigma=plan.inner_sigma)
             op = self.step1
             self._work_before = (op.iterations, op.solves, op.unconverged, op.solve_time)
         self.last_residual = previous_residual if self.inexact is not None else None

@@ -22,7 +22,10 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   body that the contact alone holds, Γ_C past the condensed rule but
   within :data:`INVERSE_MAX_CONTACT_NODES` and :data:`INVERSE_MEMORY_FRACTION`),
   sparse (2D, factorisations of the body), or none;
-* the penalty metric: the paper's r M, or the surface metric r(M + βL_Γ) (3D).
+* the penalty metric: the paper's r M, or the surface metric r(M + βL_Γ) (3D);
+* an iterative step 1's inner tolerances (:mod:`admm_dolfinx.admm.inexact`): σ by
+  whether the Dirichlet conditions hold the body (its outer iteration contracts fast)
+  or the contact alone does.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from mpi4py import MPI
 
+from admm_dolfinx.admm.inexact import SIGMA_FLOATING, SIGMA_HELD
 from admm_dolfinx.admm.settings import ADMMSettings
 from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
 from admm_dolfinx.linalg.mumps_schur import CENTRALISED_RHS
@@ -90,6 +94,7 @@ class SolverPlan:
         ksp_rtol: The tolerance of an iterative step 1: ``"auto"`` (the inexact rule,
             tied to the outer residual), a number (``petsc_options["ksp_rtol"]``), or
             None (a direct solve).
+        inner_sigma: σ of the inexact rule (with ``ksp_rtol`` ``"auto"``), else None.
         reasons: Why, in words.
     """
 
@@ -101,6 +106,7 @@ class SolverPlan:
     private_schur: bool
     step1_options: dict
     ksp_rtol: str | float | None
+    inner_sigma: float | None
     reasons: tuple[str, ...]
 
     def describe(self) -> str:
@@ -215,6 +221,19 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
             "expert penalty_method='dense' needs a MUMPS factorisation of the body "
             "condensed onto Γ_C; use penalty_method 'local' or 'factorised'."
         )
+    ksp_rtol: str | float | None = None
+    inner_sigma = None
+    if step1 == "iterative":
+        ksp_rtol = float(options["ksp_rtol"]) if "ksp_rtol" in options else "auto"
+    if ksp_rtol == "auto":
+        inner_sigma = settings.inner_sigma
+        if inner_sigma is None:
+            floating = problem.rigid_motions.floating
+            inner_sigma = SIGMA_FLOATING if floating else SIGMA_HELD
+            reasons.append(
+                f"inner tolerance σ r with σ = {inner_sigma:g}: "
+                + ("the contact alone holds the body" if floating else "a held body")
+            )
     penalty_tol = settings.penalty_tol
     if penalty == "given":
         penalty_tol = None
@@ -231,13 +250,8 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         step1_options=(
             {**options, **CENTRALISED_RHS} if polish == "inverse" and not serial else options
         ),
-        ksp_rtol=(
-            None
-            if step1 != "iterative"
-            else float(options["ksp_rtol"])
-            if "ksp_rtol" in options
-            else "auto"
-        ),
+        ksp_rtol=ksp_rtol,
+        inner_sigma=inner_sigma,
         reasons=tuple(reasons),
     )
 

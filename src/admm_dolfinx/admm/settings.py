@@ -63,6 +63,7 @@ EXPERT_SETTINGS = (
     "penalty_metric",
     "condensed",
     "polish_rounds",
+    "inner_sigma",
 )
 #: Names that are gone, and how to say the same thing now.
 RENAMED = {
@@ -209,7 +210,8 @@ class ADMMSettings:
     """Validated settings of :class:`~admm_dolfinx.ADMMSolver` (build with :meth:`create`).
 
     Every setting reads as an attribute; :data:`USER_SETTINGS` are given by name,
-    :data:`EXPERT_SETTINGS` in ``expert={...}`` (``kkt_tol`` to ``polish_rounds`` below).
+    :data:`EXPERT_SETTINGS` in ``expert={...}`` (``kkt_tol`` to ``polish_rounds``, and
+    ``inner_sigma``, below).
 
     Attributes:
         penalty: Penalty parameter r > 0, or ``"auto"``: r* = 1/sqrt(λ_min λ_max) (in
@@ -262,6 +264,11 @@ class ADMMSettings:
             the Schur complement, polishing, the surface metric) takes its defaults and
             the PETSc options database under its own prefix (:attr:`prefixes`).
         petsc_options_prefix: The solver's options prefix (see :attr:`prefixes`).
+        inner_sigma: σ of the inexact rule of an iterative step 1 (its tolerance is
+            σ r_{k−1} once the outer residual is small), in (0, 1), or None: chosen by
+            the plan, :data:`~admm_dolfinx.admm.inexact.SIGMA_HELD` for a body held by
+            its Dirichlet conditions, :data:`~admm_dolfinx.admm.inexact.SIGMA_FLOATING`
+            for one that the contact alone holds.
     """
 
     penalty: float | str = "auto"
@@ -281,6 +288,7 @@ class ADMMSettings:
     step1: str = "auto"
     petsc_options: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
     petsc_options_prefix: str = DEFAULT_PREFIX
+    inner_sigma: float | None = None
 
     @classmethod
     def create(cls, *, expert: Mapping[str, Any] | None = None, **given: Any) -> ADMMSettings:
@@ -356,6 +364,14 @@ class ADMMSettings:
         polish_rounds = _integer("polish_rounds", values.get("polish_rounds", 10))
         if polish_rounds < 1:
             raise ValueError(f"polish_rounds must be at least 1, got {polish_rounds}.")
+        inner_sigma = values.get("inner_sigma")
+        if inner_sigma is not None:
+            inner_sigma = _real("inner_sigma", inner_sigma)
+            if not 0.0 < inner_sigma < 1.0:
+                raise ValueError(
+                    f"inner_sigma must lie in (0, 1) (or None: chosen by the plan), "
+                    f"got {inner_sigma!r}."
+                )
         prefix = values.get("petsc_options_prefix", DEFAULT_PREFIX)
         if not isinstance(prefix, str) or not prefix or prefix.startswith("-"):
             raise ValueError(
@@ -400,6 +416,12 @@ class ADMMSettings:
                 f"step 1 (step1={step1!r}, no ksp_type) may be factorised, which solves "
                 "exactly: pass step1='iterative' with it, or drop ksp_rtol."
             )
+        if inner_sigma is not None and ("ksp_rtol" in options or step1 == "factorised"):
+            why = "ksp_rtol fixes" if "ksp_rtol" in options else "step1='factorised' has"
+            raise ValueError(
+                f"expert inner_sigma sets the inexact rule of an iterative step 1, and "
+                f"{why} no such rule: drop one of them."
+            )
         settings = cls(
             penalty=penalty,
             mode=mode,
@@ -420,6 +442,7 @@ class ADMMSettings:
             step1=step1,
             petsc_options=MappingProxyType(dict(options)),
             petsc_options_prefix=prefix,
+            inner_sigma=inner_sigma,
         )
         settings._check_combinations()
         return settings
