@@ -41,7 +41,7 @@ from pathlib import Path
 from mpi4py import MPI
 from petsc4py import PETSc
 from scale_3d import LADDER, MODEL
-from tables import print_and_save
+from tables import print_and_save, select
 from timing import timed
 
 import admm_dolfinx
@@ -139,13 +139,7 @@ def main() -> None:
     parser.add_argument("--only", help="comma-separated case names")
     parser.add_argument("--out", default="out_benchmarks")
     args = parser.parse_args()
-    cases = QUICK if args.quick else CASES
-    if args.only:
-        wanted = args.only.split(",")
-        unknown = [name for name in wanted if name not in cases]
-        if unknown:
-            parser.error(f"--only: unknown cases {unknown}; there are {list(cases)}")
-        cases = {name: cases[name] for name in wanted}
+    cases = select(parser, QUICK if args.quick else CASES, args.only)
     comm = MPI.COMM_WORLD
     root = comm.rank == 0
     if root:

@@ -225,19 +225,13 @@ def main() -> None:
     if args.worker:
         worker(*args.worker, args.out, args.quick)
         return
-    from tables import print_and_save
+    from tables import print_and_save, select
 
     from admm_dolfinx.admm.plan import MEMORY_FRACTION
     from admm_dolfinx.linalg.factor_estimate import available_memory
 
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    cases = QUICK if args.quick else LADDER
-    if args.only:
-        wanted = args.only.split(",")
-        unknown = [name for name in wanted if name not in cases]
-        if unknown:
-            parser.error(f"--only: unknown sizes {unknown}; the ladder has {list(cases)}")
-        cases = {name: cases[name] for name in wanted}
+    cases = select(parser, QUICK if args.quick else LADDER, args.only)
     memory = available_memory() or float("inf")
     rows = []
     snes_time: list[tuple[int, float]] = []

@@ -1,4 +1,5 @@
-"""Shared output of the benchmark scripts: a markdown table, a CSV file and a book page.
+"""Shared output of the benchmark scripts: a markdown table, a CSV file and a book page
+(and the ``--only`` selection of the cases, which decides whether the page is written).
 
 Imported by the scripts in this folder (``python benchmarks/<script>.py`` puts the
 folder on ``sys.path``). Call on rank 0 only.
@@ -53,6 +54,18 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGES = ROOT / "docs" / "benchmarks"
 _PARTIAL_RUN = ("--quick", "--small", "--only")
 _tables: list[tuple[str, str]] = []
+
+
+def select(parser, cases: dict, only: str | None) -> dict:
+    """The cases named in ``--only`` (comma-separated), in that order, or all of them;
+    an unknown name is a usage error naming the known ones."""
+    if not only:
+        return cases
+    wanted = only.split(",")
+    unknown = [name for name in wanted if name not in cases]
+    if unknown:
+        parser.error(f"--only: unknown cases {unknown}; there are {list(cases)}")
+    return {name: cases[name] for name in wanted}
 
 
 def _page_wanted() -> bool:

@@ -181,7 +181,8 @@ def test_the_plan_ties_the_inner_tolerance_to_how_the_body_is_held():
             },
             "ksp_rtol fixes",
         ),
-        ({"step1": "factorised", "expert": {"inner_sigma": 0.01}}, "has no such rule"),
+        ({"step1": "factorised", "expert": {"inner_sigma": 0.01}}, "may be factorised"),
+        ({"expert": {"inner_sigma": 0.01}}, "may be factorised"),  # step1="auto"
     ],
 )
 def test_step1_settings_conflicts_raise(given, message):

@@ -61,10 +61,11 @@ class InexactRule:
     Args:
         fixed: A fixed tolerance (``ksp_rtol`` in the user's ``petsc_options``), or None
             for the adaptive rule.
-        sigma: σ, the inner tolerance relative to the previous outer residual.
+        sigma: σ, the inner tolerance relative to the previous outer residual (the
+            plan's choice; the safe default is the tighter :data:`SIGMA_FLOATING`).
     """
 
-    def __init__(self, fixed: float | None = None, sigma: float = SIGMA_HELD):
+    def __init__(self, fixed: float | None = None, sigma: float = SIGMA_FLOATING):
         if not 0.0 < sigma < 1.0:
             raise ValueError(f"the inexact rule's σ must lie in (0, 1), got {sigma}.")
         self.fixed = fixed

@@ -128,6 +128,18 @@ def _real(name: str, value: Any) -> float:
     return float(value)
 
 
+def _optional_fraction(name: str, value: Any, chooser: str) -> float | None:
+    """None, or a real number in (0, 1); ``chooser`` says who picks it when None."""
+    if value is None:
+        return None
+    value = _real(name, value)
+    if not 0.0 < value < 1.0:
+        raise ValueError(
+            f"{name} must lie in (0, 1) (or None: chosen by {chooser}), got {value!r}."
+        )
+    return value
+
+
 def _integer(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be an int, got {value!r}.")
@@ -268,7 +280,8 @@ class ADMMSettings:
             σ r_{k−1} once the outer residual is small), in (0, 1), or None: chosen by
             the plan, :data:`~admm_dolfinx.admm.inexact.SIGMA_HELD` for a body held by
             its Dirichlet conditions, :data:`~admm_dolfinx.admm.inexact.SIGMA_FLOATING`
-            for one that the contact alone holds.
+            for one that the contact alone holds. Refused where step 1 may be
+            factorised or its tolerance is fixed (``ksp_rtol``): it would go unused.
     """
 
     penalty: float | str = "auto"
@@ -350,28 +363,14 @@ class ADMMSettings:
         anderson = _integer("anderson", values["anderson"])
         if anderson < 0:
             raise ValueError(f"anderson (memory) must be ≥ 0 (0: off), got {anderson}.")
-        penalty_tol = values.get("penalty_tol")
-        if penalty_tol is not None:
-            penalty_tol = _real("penalty_tol", penalty_tol)
-            if not 0.0 < penalty_tol < 1.0:
-                raise ValueError(
-                    f"penalty_tol must lie in (0, 1) (or None: chosen by the metric), "
-                    f"got {penalty_tol!r}."
-                )
+        penalty_tol = _optional_fraction("penalty_tol", values.get("penalty_tol"), "the metric")
         penalty = values.get("penalty", "auto")
         if not (isinstance(penalty, str) and penalty == "auto"):
             penalty = check_penalty(penalty)
         polish_rounds = _integer("polish_rounds", values.get("polish_rounds", 10))
         if polish_rounds < 1:
             raise ValueError(f"polish_rounds must be at least 1, got {polish_rounds}.")
-        inner_sigma = values.get("inner_sigma")
-        if inner_sigma is not None:
-            inner_sigma = _real("inner_sigma", inner_sigma)
-            if not 0.0 < inner_sigma < 1.0:
-                raise ValueError(
-                    f"inner_sigma must lie in (0, 1) (or None: chosen by the plan), "
-                    f"got {inner_sigma!r}."
-                )
+        inner_sigma = _optional_fraction("inner_sigma", values.get("inner_sigma"), "the plan")
         prefix = values.get("petsc_options_prefix", DEFAULT_PREFIX)
         if not isinstance(prefix, str) or not prefix or prefix.startswith("-"):
             raise ValueError(
@@ -416,11 +415,18 @@ class ADMMSettings:
                 f"step 1 (step1={step1!r}, no ksp_type) may be factorised, which solves "
                 "exactly: pass step1='iterative' with it, or drop ksp_rtol."
             )
-        if inner_sigma is not None and ("ksp_rtol" in options or step1 == "factorised"):
-            why = "ksp_rtol fixes" if "ksp_rtol" in options else "step1='factorised' has"
+        # like ksp_rtol, σ is refused where step 1 may be factorised: never silently unused
+        if inner_sigma is not None and (
+            "ksp_rtol" in options or not (step1 == "iterative" or krylov)
+        ):
+            why = (
+                "petsc_options ksp_rtol fixes the tolerance instead"
+                if "ksp_rtol" in options
+                else f"this step 1 (step1={step1!r}, no ksp_type) may be factorised, which has none"
+            )
             raise ValueError(
-                f"expert inner_sigma sets the inexact rule of an iterative step 1, and "
-                f"{why} no such rule: drop one of them."
+                "expert inner_sigma sets the inexact rule of an iterative step 1, and "
+                f"{why}: pass step1='iterative' with it and no ksp_rtol, or drop it."
             )
         settings = cls(
             penalty=penalty,
