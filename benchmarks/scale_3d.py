@@ -5,9 +5,10 @@ of the level-0 mesh at smaller element sizes), and graded meshes (small elements
 Γ_C, large ones on the top face). For each size every configuration runs in a process
 of its own (so that its peak memory is its own), one after the other:
 
-* ``default``: ``ADMMSolver(problem)``: the plan chooses step 1 from MUMPS's analysis
-  (the multigrid path above ``FACTOR_FLOPS_LIMIT``), r* by the local method, the
-  surface metric;
+* ``default``: ``ADMMSolver(problem)``: the plan chooses step 1 from the mesh's
+  bracket of a factorisation's cost, or from MUMPS's analysis where the bracket
+  straddles a threshold (the multigrid path above ``FACTOR_FLOPS_LIMIT``), r* by the
+  local method, the surface metric;
 * ``factorised``: the same with ``step1="factorised"`` (MUMPS), where MUMPS's analysis
   says it fits in half the memory;
 * ``iterative``: the same with ``step1="iterative"`` (CG + GAMG, warm starts, the
@@ -24,10 +25,10 @@ KKT tolerance 1e-6 (``kkt``), and ``vs ref`` is ‖u − u_ref‖/‖u_ref‖ ag
 VI's answer at the same size (active-set Newton with direct solves, exact to round-off
 once its active set is right) where it ran, else against the factorised ADMM's.
 
-Columns: seconds per phase (``mesh s``; ``assembly``; ``plan`` (MUMPS's analysis and the
-rest of the set-up); ``r*`` (the estimate and the surface metric's β, μ_max; of it
-``λ_min s``, ``λ_max s`` with its ``λ_max V-cycles`` (the multigrid LOBPCG's start
-and iterations), and ``μ_max s``);
+Columns: seconds per phase (``mesh s``; ``assembly``; ``plan`` (the choice of step 1,
+with MUMPS's analysis where it is asked, and the rest of the set-up); ``r*`` (the
+estimate and the surface metric's β, μ_max; of it ``λ_min s``, ``λ_max s`` with its
+``λ_max V-cycles`` (the multigrid LOBPCG's start and iterations), and ``μ_max s``);
 ``step-1 setup`` (factorisation or multigrid set-up); ``step-1 solves`` and
 ``step 2+`` (the rest of the iterations: the surface QP on Γ_C, residuals)),
 ``total`` (all but the mesh), ADMM iterations, Krylov iterations of step 1, and the

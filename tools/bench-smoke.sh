@@ -32,6 +32,7 @@ run "$py" benchmarks/polish_3d.py --scene hertz_sphere --quick
 run "$py" benchmarks/contact_model.py --quick
 run "$py" benchmarks/scale_3d.py --quick
 run "$py" benchmarks/inner_tolerance.py --quick
+run "$py" benchmarks/factor_prediction.py --quick
 run "$py" benchmarks/scale_2d.py --quick
 run "$py" benchmarks/work_precision_adaptive.py --quick
 for b in "${parallel_smoke[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done

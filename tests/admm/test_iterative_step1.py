@@ -12,6 +12,8 @@ from petsc4py import PETSc
 import admm_dolfinx.admm.plan as plan_module
 from admm_dolfinx import ADMMConvergenceError, ADMMSolver
 from admm_dolfinx.admm.inexact import SIGMA_FLOATING, SIGMA_HELD, TAU_FLOOR, InexactRule
+from admm_dolfinx.linalg.factor_estimate import mumps_estimate
+from admm_dolfinx.linalg.factor_prediction import mesh_volume, predict_factorisation
 from admm_dolfinx.scenes import example1, example3, hertz_sphere
 
 pytestmark = pytest.mark.timeout(600)
@@ -193,15 +195,41 @@ def test_step1_settings_conflicts_raise(given, message):
 
 
 def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):
-    """3D, step1='auto', no options: factorised while MUMPS's estimate is small; above
-    the flop limit, or beyond the memory budget, multigrid, with the reason given."""
+    """3D, step1='auto', no options: the mesh's bracket of a factorisation's cost
+    decides where all of it lies on one side of the thresholds, without MUMPS's
+    analysis; where it straddles one, the analysis decides. Factorised while the cost
+    is small; above the flop limit, or beyond the memory budget, multigrid, with the
+    reason given."""
     problem = example3(level=1).problem()
+    analyses = []
+
+    def counted(A, **kwargs):
+        analyses.append(A.getSize()[0])
+        return mumps_estimate(A, **kwargs)
+
+    monkeypatch.setattr(plan_module, "mumps_estimate", counted)
     with ADMMSolver(problem) as solver:
-        assert solver.plan.step1 == "factorised"
-        assert "GB and" in solver.plan.describe()
+        assert solver.plan.step1 == "factorised" and solver.plan.step1_basis == "mesh"
+        assert "analysis not needed" in solver.plan.describe()
+    assert not analyses
+    # a limit inside the bracket: MUMPS's analysis decides, and its figures are given
+    sides = problem.bounds[1] - problem.bounds[0]
+    bracket = predict_factorisation(sides, mesh_volume(problem.mesh), problem.A.getSize()[0])
+    estimate = mumps_estimate(problem.A)
+    for limit, chosen in [
+        (estimate.flops * 1.5, "factorised"),
+        (estimate.flops / 1.5, "iterative"),
+    ]:
+        assert bracket.flops[0] < limit < bracket.flops[1]
+        monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", limit)
+        with ADMMSolver(problem) as solver:
+            assert solver.plan.step1 == chosen and solver.plan.step1_basis == "analysis"
+            assert "GB and" in solver.plan.describe()
+    assert len(analyses) == 2
     monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", 1.0)
     with ADMMSolver(problem) as solver:
         assert solver.plan.step1 == "iterative" and "flops" in solver.plan.describe()
+        assert solver.plan.step1_basis == "mesh"
         assert solver.solve().converged
     # the paper's algorithm factorises wherever it fits, and says so (it switched to
     # multigrid on Table 6's largest mesh)
@@ -215,5 +243,6 @@ def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):
         assert solver.plan.step1 == "iterative" and "available" in solver.plan.describe()
     with ADMMSolver(paper, mode="paper") as solver:  # unless it does not fit
         assert solver.plan.step1 == "iterative" and "available" in solver.plan.describe()
+    assert len(analyses) == 2
     with ADMMSolver(problem, step1="factorised") as solver:  # the user's choice stands
         assert solver.plan.step1 == "factorised"

@@ -8,6 +8,7 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
+import admm_dolfinx.admm.plan as plan_module
 from admm_dolfinx import ADMMSolver
 from admm_dolfinx.linalg.factor_estimate import PARALLEL_ANALYSIS, mumps_estimate
 from admm_dolfinx.linalg.petsc import apply_options, prefixed_options
@@ -52,11 +53,13 @@ def test_mumps_estimate_matches_the_factorisation_it_predicts():
     assert np.isfinite(estimate.memory_per_process)
 
 
-def test_mumps_estimate_reads_its_prefix_and_refuses_a_failed_analysis():
+def test_mumps_estimate_reads_its_prefix_and_refuses_a_failed_analysis(monkeypatch):
     """Options under the prefix reach the analysis, options under another prefix do
     not (an ordering of more fill gives more operations, a control MUMPS cannot honour
     makes it fail); a failed analysis (INFOG(1) < 0) gives None, never figures of zero;
-    and the solver's plan gives the analysis the prefix <solver prefix>estimate_."""
+    and the solver's plan, where it asks the analysis (a flop limit inside the mesh's
+    bracket), gives it the prefix <solver prefix>estimate_ and falls back to a
+    factorisation when it fails."""
     problem = example3(level=2).problem()
     A = problem.A
     sequential = {"mat_mumps_icntl_28": 1}
@@ -71,6 +74,8 @@ def test_mumps_estimate_reads_its_prefix_and_refuses_a_failed_analysis():
     # ICNTL(15) = 1 asks for a block structure PETSc does not pass: MUMPS fails
     with prefixed_options("est_", {"mat_mumps_icntl_15": 1}):
         assert mumps_estimate(A, prefix="est_") is None
+    monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", metis.flops)
     with prefixed_options("est_solver_estimate_", {"mat_mumps_icntl_15": 1}):
         with ADMMSolver(problem, petsc_options_prefix="est_solver_") as solver:
             assert "no analysis available" in solver.plan.describe()
+            assert solver.plan.step1_basis == "fallback"

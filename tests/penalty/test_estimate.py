@@ -182,8 +182,8 @@ def test_auto_penalty_2d_factorises_the_body_once():
 @pytest.mark.parametrize("method,tol", [("local", 1e-2), ("factorised", 1e-8)])
 def test_auto_penalty_shares_one_symbolic_factorisation(method, tol, metric):
     """3D (iterative r*), counted from PETSc's log (Cholesky events): the whole body
-    is analysed twice, once by the plan (MUMPS's analysis alone, to choose step 1) and
-    once by its factorisation, which then serves every numeric one. With the local
+    is analysed once, by its factorisation, which then serves every numeric one (the
+    plan chooses step 1 from the mesh's bracket of the cost, with no analysis). With the local
     method it is factorised once, at r* (λ_max by multigrid; each layer along Γ_C adds
     one small factorisation); with the factorised one also at r_a and for the exact
     Schur complement. The surface metric (the 3D default) adds one small factorisation
@@ -209,7 +209,8 @@ def test_auto_penalty_shares_one_symbolic_factorisation(method, tol, metric):
         extra_sym += 1
         extra_num += qp
     assert (steps > 0) == (method == "local")
-    assert sym1 - sym0 == 2 + steps + extra_sym
+    assert solver.plan.step1_basis == "mesh"
+    assert sym1 - sym0 == 1 + steps + extra_sym
     assert num1 - num0 == (1 if steps else 3) + steps + extra_num
     assert estimate.details["lambda_max_method"] == ("multigrid" if steps else "factorised")
     assert result.timings["penalty"] == pytest.approx(

@@ -8,12 +8,14 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   contact alone, one process, where the dense work is cheap:
   :func:`~admm_dolfinx.operators.condensed.condensed_factor_applies`), a
   factorisation of A + rK, or conjugate gradients with multigrid (an inexact ADMM).
-  In 3D, with ``step1="auto"`` and no solver options, MUMPS's analysis
-  (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) decides: multigrid if
-  the factorisation would need more than :data:`MEMORY_FRACTION` of the available
-  memory or more than :data:`FACTOR_FLOPS_LIMIT` operations (where the multigrid path
-  is faster: ``python benchmarks/scale_3d.py`` measures both sides of it). With
-  ``mode="paper"`` only memory counts: the paper's algorithm factorises step 1;
+  In 3D, with ``step1="auto"`` and no solver options: multigrid if the factorisation
+  would need more than :data:`MEMORY_FRACTION` of the available memory or more than
+  :data:`FACTOR_FLOPS_LIMIT` operations (where the multigrid path is faster:
+  ``python benchmarks/scale_3d.py`` measures both sides of it). What it would need is
+  bracketed from the mesh (:mod:`~admm_dolfinx.linalg.factor_prediction`), and MUMPS's
+  analysis (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) is run only
+  where the bracket straddles a threshold. With ``mode="paper"`` only memory counts:
+  the paper's algorithm factorises step 1;
 * r*: dense (from the condensed factorisation), local (no factorisation of the body)
   or factorised, unless the penalty is given, and its eigenvalue tolerance (looser in
   the surface metric, which uses λ_min and λ_max roughly);
@@ -38,6 +40,7 @@ from mpi4py import MPI
 from admm_dolfinx.admm.inexact import SIGMA_FLOATING, SIGMA_HELD
 from admm_dolfinx.admm.settings import ADMMSettings
 from admm_dolfinx.linalg.factor_estimate import available_memory, mumps_estimate
+from admm_dolfinx.linalg.factor_prediction import mesh_volume, predict_factorisation
 from admm_dolfinx.linalg.mumps_schur import CENTRALISED_RHS
 from admm_dolfinx.linalg.petsc import is_factorisation, iterative_options
 from admm_dolfinx.operators.condensed import condensed_factor_applies
@@ -95,6 +98,11 @@ class SolverPlan:
             tied to the outer residual), a number (``petsc_options["ksp_rtol"]``), or
             None (a direct solve).
         inner_sigma: σ of the inexact rule (with ``ksp_rtol`` ``"auto"``), else None.
+        step1_basis: What chose step 1: ``"settings"`` (the user's settings or options,
+            2D, or an explicit condensed step), ``"mesh"`` (the mesh's bracket of a
+            factorisation's cost, :mod:`~admm_dolfinx.linalg.factor_prediction`),
+            ``"analysis"`` (MUMPS's analysis) or ``"fallback"`` (a factorisation, the
+            analysis having failed).
         reasons: Why, in words.
     """
 
@@ -107,6 +115,7 @@ class SolverPlan:
     step1_options: dict
     ksp_rtol: str | float | None
     inner_sigma: float | None
+    step1_basis: str
     reasons: tuple[str, ...]
 
     def describe(self) -> str:
@@ -130,7 +139,7 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     serial = problem.comm.size == 1
     gdim = problem.gdim
     reasons = [f"{gdim}D", "one process" if serial else f"{problem.comm.size} processes"]
-    iterative, why = _iterative_step1(problem, settings, options)
+    iterative, basis, why = _iterative_step1(problem, settings, options)
     reasons.append(why)
     if iterative:
         options = iterative_options(options)
@@ -252,6 +261,7 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         ),
         ksp_rtol=ksp_rtol,
         inner_sigma=inner_sigma,
+        step1_basis=basis,
         reasons=tuple(reasons),
     )
 
@@ -283,38 +293,70 @@ def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
 
 
 def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: dict):
-    """(whether step 1 is iterative, why in words); collective (MUMPS's analysis)."""
+    """(whether step 1 is iterative, what decided it, why in words); collective."""
     if settings.step1 == "iterative":
-        return True, "step1='iterative': CG + multigrid"
+        return True, "settings", "step1='iterative': CG + multigrid"
     if options.get("ksp_type", "preonly") != "preonly":
-        return True, f"an iterative step 1 from petsc_options {options}"
+        return True, "settings", f"an iterative step 1 from petsc_options {options}"
     if settings.step1 == "factorised" or options:
-        return False, "MUMPS factorisation"
+        return False, "settings", "MUMPS factorisation"
     if problem.gdim != 3 or settings.condensed is True or settings.polish is True:
-        return False, "MUMPS factorisation"
-    estimate = mumps_estimate(problem.A, prefix=settings.prefixes["estimate"])
-    if estimate is None:
-        return False, "MUMPS factorisation (no analysis available to compare)"
+        return False, "settings", "MUMPS factorisation"
     # the smallest figure over the ranks: on one machine every rank sees the same total
     memory = problem.comm.allreduce(available_memory() or float("inf"), op=MPI.MIN)
-    need = f"{estimate.memory / 1e9:.3g} GB and {estimate.flops:.3g} flops"
-    if estimate.memory > MEMORY_FRACTION * memory:
-        return True, (
-            f"a factorisation would need {need}, more than {MEMORY_FRACTION:g} of the "
-            f"{memory / 1e9:.3g} GB available: CG + multigrid"
+    # the mesh's bracket first: where all of it falls on one side of the thresholds,
+    # MUMPS's analysis would only confirm it
+    bracket = predict_factorisation(
+        problem.bounds[1] - problem.bounds[0], mesh_volume(problem.mesh), problem.A.getSize()[0]
+    )
+    low = _factorise_or_not(problem, settings, bracket.flops[0], bracket.memory[0], memory)
+    high = _factorise_or_not(problem, settings, bracket.flops[1], bracket.memory[1], memory)
+    if low[0] == high[0]:
+        # the binding rule: the cheapest cost already iterative, the dearest factorised
+        rule = low[1] if low[0] else high[1]
+        return (
+            low[0],
+            "mesh",
+            (
+                f"{'CG + multigrid' if low[0] else 'MUMPS factorisation'}: the mesh bounds a "
+                f"factorisation at {bracket.flops[0]:.1e} to {bracket.flops[1]:.1e} flops and "
+                f"{bracket.memory[0] / 1e9:.2g} to {bracket.memory[1] / 1e9:.2g} GB, {rule} "
+                "(MUMPS's analysis not needed)"
+            ),
         )
+    estimate = mumps_estimate(problem.A, prefix=settings.prefixes["estimate"])
+    if estimate is None:
+        return False, "fallback", "MUMPS factorisation (no analysis available to compare)"
+    iterative, why = _factorise_or_not(problem, settings, estimate.flops, estimate.memory, memory)
+    need = f"{estimate.memory / 1e9:.3g} GB and {estimate.flops:.3g} flops"
+    return (
+        iterative,
+        "analysis",
+        (
+            f"{'CG + multigrid' if iterative else 'MUMPS factorisation'}: MUMPS's analysis "
+            f"says a factorisation would need {need} ({why})"
+        ),
+    )
+
+
+def _factorise_or_not(
+    problem: ContactProblem, settings: ADMMSettings, flops: float, need: float, memory: float
+) -> tuple[bool, str]:
+    """(whether step 1 is iterative, the rule that says so) for a factorisation's cost.
+
+    Monotone: a factorisation chosen at some cost is chosen at any smaller one.
+    """
+    if need > MEMORY_FRACTION * memory:
+        return True, f"more than {MEMORY_FRACTION:g} of the {memory / 1e9:.3g} GB available"
     if settings.mode == "paper":
         # the paper's Algorithm 2 factorises step 1 once: kept wherever it fits
-        return False, f"MUMPS factorisation, as the paper's algorithm ({need})"
-    if estimate.flops > FACTOR_FLOPS_LIMIT and _polishes_from_factors(problem, settings):
-        if estimate.flops <= FLOATING_FACTOR_FLOPS_LIMIT:
+        return False, "it fits: factorised as the paper's algorithm"
+    if flops > FACTOR_FLOPS_LIMIT and _polishes_from_factors(problem, settings):
+        if flops <= FLOATING_FACTOR_FLOPS_LIMIT:
             return False, (
-                f"MUMPS factorisation ({need}): a floating body, whose polishing reads "
-                "the step-1 factors"
+                f"≤ {FLOATING_FACTOR_FLOPS_LIMIT:.0e} flops: a floating body, whose "
+                "polishing reads the step-1 factors"
             )
-    if estimate.flops > FACTOR_FLOPS_LIMIT:
-        return True, (
-            f"a factorisation would need {need} (> {FACTOR_FLOPS_LIMIT:.0e} flops, where "
-            "multigrid is faster): CG + multigrid"
-        )
-    return False, f"MUMPS factorisation ({need})"
+    if flops > FACTOR_FLOPS_LIMIT:
+        return True, f"> {FACTOR_FLOPS_LIMIT:.0e} flops, where multigrid is faster"
+    return False, f"≤ {FACTOR_FLOPS_LIMIT:.0e} flops and it fits"
