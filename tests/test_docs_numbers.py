@@ -450,8 +450,8 @@ def _scale_3d_mpi():
     gaps = [run(m, "tight", "2")["vs serial"] for m in ("257k", "1.2M")]
     return [
         f"took {out[0]} the serial time at 257k dofs and {out[1]} at 1.2M",
-        f"faster at 1.2M ({num(s1['step 2+']):.2f} → {num(s2['step 2+']):.2f} s)",
-        f"not at 257k ({num(t1['step 2+']):.2g} → {num(t2['step 2+']):.2g} s)",
+        f"from {num(s1['step 2+']):.2f} to {num(s2['step 2+']):.2f} s at 1.2M",
+        f"from {num(t1['step 2+']):.2g} to {num(t2['step 2+']):.2g} s at 257k",
         f"({num(t1['λ_min s']):.3f} → {num(t2['λ_min s']):.3f} s and "
         f"{num(s1['λ_min s']):.2f} → {num(s2['λ_min s']):.2f} s)",
         f"within {run('257k', 'default', '2')['vs serial'].replace('e-0', 'e-')} (257k) and "
@@ -755,51 +755,51 @@ QUOTES: list[tuple[str, str, Callable[[], list[str]]]] = [
     ),
     (
         "scale.md",
-        "On the run of 2026-12-04 00:56 UTC (`python benchmarks/scale_3d.py --mpi "
+        "On the run of 2026-12-06 01:02 UTC (`python benchmarks/scale_3d.py --mpi "
         "--snes-limit 1200`)",
         lambda: list(provenance("scale_3d", "scale 3d")),
     ),
     (
         "scale.md",
         "the default took 1.7–2.2× the plain CG + GAMG solve at every uniform size from 158k "
-        "to 2.27M dofs (1.93× at 1.2M), and 1.99× on the graded mesh, at 1.2–1.4× its peak "
-        "memory (5.9 GB at 2.27M dofs), in 11–12 iterations;",
+        "to 2.27M dofs (1.74× at 1.2M), and 1.94× on the graded mesh, at 1.2–1.4× its peak "
+        "memory (5.9 GB at 2.27M dofs), in 14–15 iterations;",
         lambda: [*_scale_3d()[:5], _scale_3d()[-1]],
     ),
     (
         "scale.md",
-        "it was 8.2–14.4× faster than SNES VI where SNES VI ran, its answer within 4–5e-7 of "
+        "it was 10.8–18.4× faster than SNES VI where SNES VI ran, its answer within 1–2e-7 of "
         "SNES VI's",
         lambda: _scale_3d()[5:7],
     ),
     (
         "scale.md",
-        "r* was 0.069–0.083 of the solve, 0.072 on the graded mesh;",
+        "r* was 0.079–0.097 of the solve, 0.088 on the graded mesh;",
         lambda: _scale_3d()[7:8],
     ),
     (
         "scale.md",
-        "under `mpiexec -n 2` the solve took 0.59× the serial time at 257k dofs and 0.57× at 1.2M.",
+        "under `mpiexec -n 2` the solve took 0.53× the serial time at 257k dofs and 0.56× at 1.2M.",
         lambda: _scale_3d_mpi()[:1],
     ),
     (
         "scale.md",
-        "Step 2 was faster at 1.2M (0.35 → 0.30 s) but not at 257k (0.082 → 0.089 s)",
+        "Step 2 went from 0.31 to 0.32 s at 1.2M and from 0.096 to 0.086 s at 257k",
         lambda: _scale_3d_mpi()[1:3],
     ),
     (
         "scale.md",
-        "so did λ_min's surface problem at both sizes (0.047 → 0.060 s and 0.24 → 0.26 s)",
+        "so did λ_min's surface problem at both sizes (0.048 → 0.045 s and 0.18 → 0.22 s)",
         lambda: _scale_3d_mpi()[3:4],
     ),
     (
         "scale.md",
-        "the parallel answers were within 2.2e-7 (257k) and 1.3e-7 (1.2M) of the serial ones",
+        "the parallel answers were within 1.6e-7 (257k) and 2.8e-7 (1.2M) of the serial ones",
         lambda: _scale_3d_mpi()[4:5],
     ),
     (
         "scale.md",
-        "(the `tight` rows, 16–18 iterations) the gap fell to 3.1e-10 and 2.9e-10.",
+        "(the `tight` rows, 18–26 iterations) the gap fell to 3.2e-10 and 1.3e-10.",
         lambda: _scale_3d_mpi()[5:],
     ),
     (
@@ -839,7 +839,7 @@ QUOTES: list[tuple[str, str, Callable[[], list[str]]]] = [
     ),
     (
         "reproduction.md",
-        "and the default, in the surface metric, 11 (the `158k` default row of [the 3D "
+        "and the default, in the surface metric, 14 (the `158k` default row of [the 3D "
         "ladder](benchmarks/scale_3d.md): 157779 dofs and 2137 contact nodes, as level 3)",
         lambda: _reproduction_fine_mesh()[2:],
     ),
