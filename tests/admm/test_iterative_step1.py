@@ -1,11 +1,12 @@
 """The multigrid step 1: CG + GAMG with the rigid-body near null space, warm-started, to
 inner tolerances tied to the outer residual (the inexact ADMM), and the plan that
-chooses it from MUMPS's own analysis."""
+chooses it from the mesh's bracket of a factorisation's cost or MUMPS's own analysis."""
 
 from __future__ import annotations
 
 import itertools
 
+import numpy as np
 import pytest
 from petsc4py import PETSc
 
@@ -192,6 +193,26 @@ def test_step1_settings_conflicts_raise(given, message):
 
     with pytest.raises(ValueError, match=message):
         ADMMSettings.create(**given)
+
+
+@pytest.mark.parametrize("paper", [False, True])
+@pytest.mark.parametrize("floating_polish", [False, True])
+def test_the_step1_rule_is_monotone_in_the_cost(paper, floating_polish):
+    """What makes the mesh's bracket enough: a factorisation chosen at some (flops,
+    memory) is chosen at every smaller cost, so where both ends of the bracket choose
+    alike, any cost inside it (MUMPS's) chooses the same. Checked on a grid that
+    crosses every threshold (flop limits, memory), in every mode."""
+    rule = plan_module._StepOneRule(memory=8e9, paper=paper, floating_polish=floating_polish)
+    flops = np.geomspace(1e8, 1e15, 29)
+    memory = np.geomspace(1e7, 1e11, 17)
+    iterative = np.array([[rule.iterative_at(f, m)[0] for m in memory] for f in flops])
+    assert np.all(np.diff(iterative.astype(int), axis=0) >= 0)  # more flops: never back
+    assert np.all(np.diff(iterative.astype(int), axis=1) >= 0)  # more memory: never back
+    assert not iterative[0, 0] and iterative[-1, -1]
+    # the floating body's limit, the held body's, and only memory in the paper's mode
+    at_5e11 = rule.iterative_at(5e11, 1e8)[0]
+    assert at_5e11 == (not paper and not floating_polish)
+    assert rule.iterative_at(5e12, 1e8)[0] == (not paper)
 
 
 def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):

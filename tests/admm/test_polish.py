@@ -332,7 +332,7 @@ def test_a_floating_3d_body_keeps_its_factorisation_for_polishing(monkeypatch):
     with ADMMSolver(floating) as solver:
         plan = solver.plan
     assert plan.step1 == "factorised" and plan.polish == "inverse"
-    assert "floating body" in plan.describe()
+    assert "floating body" in plan.describe() and plan.step1_basis == "mesh"
     monkeypatch.setattr(plan_module, "FLOATING_FACTOR_FLOPS_LIMIT", 1.0)
     with ADMMSolver(floating) as solver:
         assert solver.plan.step1 == "iterative"

@@ -11,6 +11,7 @@ from petsc4py import PETSc
 import admm_dolfinx.admm.plan as plan_module
 from admm_dolfinx import ADMMSolver
 from admm_dolfinx.linalg.factor_estimate import PARALLEL_ANALYSIS, mumps_estimate
+from admm_dolfinx.linalg.factor_prediction import mesh_volume, predict_factorisation
 from admm_dolfinx.linalg.petsc import apply_options, prefixed_options
 from admm_dolfinx.scenes import example3
 
@@ -74,6 +75,9 @@ def test_mumps_estimate_reads_its_prefix_and_refuses_a_failed_analysis(monkeypat
     # ICNTL(15) = 1 asks for a block structure PETSc does not pass: MUMPS fails
     with prefixed_options("est_", {"mat_mumps_icntl_15": 1}):
         assert mumps_estimate(A, prefix="est_") is None
+    sides = problem.bounds[1] - problem.bounds[0]
+    bracket = predict_factorisation(sides, mesh_volume(problem.mesh), A.getSize()[0])
+    assert bracket is not None and bracket.flops[0] < metis.flops < bracket.flops[1]
     monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", metis.flops)
     with prefixed_options("est_solver_estimate_", {"mat_mumps_icntl_15": 1}):
         with ADMMSolver(problem, petsc_options_prefix="est_solver_") as solver:

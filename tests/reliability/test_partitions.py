@@ -16,10 +16,12 @@ import pytest
 from mpi4py import MPI
 
 from admm_dolfinx import ADMMSolver, Ball, Plane, estimate_penalty
+from admm_dolfinx.linalg.factor_prediction import mesh_volume, predict_factorisation
+from admm_dolfinx.problem.contact_set import mesh_bounds
 from admm_dolfinx.problem.kkt import compute_kkt_residuals
 from admm_dolfinx.studies.baselines import solve_snes_vi
 
-from partitions import CELLS, PARTITIONS, TOP, gathered, owners, pressed_box
+from partitions import CELLS, PARTITIONS, TOP, box_mesh, gathered, owners, pressed_box
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.mpi3]
 COMM = MPI.COMM_WORLD
@@ -245,3 +247,19 @@ def test_engineering_outputs_match_serial(gdim, cell, how, tmp_path_factory):
     assert (Path(folder) / "contact.bp").is_dir()
     serial_problem.destroy()
     problem.destroy()
+
+
+@pytest.mark.parametrize("cell", CELLS[3])
+@pytest.mark.parametrize("how", PARTITIONS)
+def test_the_mesh_bracket_is_the_same_on_every_partition(cell, how):
+    """The plan's bracket of a factorisation's cost (the cells' volume, the bounds):
+    the box's exact volume on every partition, a rank without cells included, and the
+    same bracket on every rank, so that every rank takes the same path (one asking
+    MUMPS's analysis alone would wait forever)."""
+    msh = box_mesh(COMM, 3, cell, how, (3, 3, 2), (1.0, 1.0, 0.5))
+    assert mesh_volume(msh) == pytest.approx(0.5, rel=1e-12)
+    sides = np.diff(mesh_bounds(msh), axis=0)[0]
+    bracket = predict_factorisation(sides, mesh_volume(msh), 3 * 48, processes=COMM.size)
+    assert bracket is not None
+    for value in (*bracket.flops, *bracket.memory):
+        assert COMM.allreduce(value, op=MPI.MIN) == COMM.allreduce(value, op=MPI.MAX)

@@ -33,6 +33,7 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from mpi4py import MPI
@@ -61,7 +62,7 @@ __all__ = [
 #: In 3D, a factorisation estimated to need more than this fraction of the memory
 #: available is not attempted: step 1 uses multigrid.
 MEMORY_FRACTION = 0.5
-#: In 3D, a factorisation estimated (by MUMPS) to cost more operations than this is
+#: In 3D, a factorisation that would cost more operations than this is
 #: slower than the multigrid path on the whole solve (the crossover of
 #: ``python benchmarks/scale_3d.py``).
 FACTOR_FLOPS_LIMIT = 1e11
@@ -98,11 +99,12 @@ class SolverPlan:
             tied to the outer residual), a number (``petsc_options["ksp_rtol"]``), or
             None (a direct solve).
         inner_sigma: σ of the inexact rule (with ``ksp_rtol`` ``"auto"``), else None.
-        step1_basis: What chose step 1: ``"settings"`` (the user's settings or options,
-            2D, or an explicit condensed step), ``"mesh"`` (the mesh's bracket of a
-            factorisation's cost, :mod:`~admm_dolfinx.linalg.factor_prediction`),
-            ``"analysis"`` (MUMPS's analysis) or ``"fallback"`` (a factorisation, the
-            analysis having failed).
+        step1_basis: What chose between a factorisation and multigrid for step 1:
+            ``"settings"`` (the user's settings or options, 2D, or an explicit
+            condensed step), ``"mesh"`` (the mesh's bracket of the factorisation's
+            cost, :mod:`~admm_dolfinx.linalg.factor_prediction`), ``"analysis"``
+            (MUMPS's analysis) or ``"fallback"`` (a factorisation, the analysis having
+            failed).
         reasons: Why, in words.
     """
 
@@ -115,7 +117,7 @@ class SolverPlan:
     step1_options: dict
     ksp_rtol: str | float | None
     inner_sigma: float | None
-    step1_basis: str
+    step1_basis: Literal["settings", "mesh", "analysis", "fallback"]
     reasons: tuple[str, ...]
 
     def describe(self) -> str:
@@ -279,7 +281,10 @@ def _polishes_from_factors(problem: ContactProblem, settings: ADMMSettings) -> b
 
 
 def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
-    """Whether T can be read off a factorised step 1 (see ``INVERSE_*``); collective."""
+    """Whether T can be read off a factorised step 1 (see ``INVERSE_*``); collective.
+
+    The same answer on every rank: the memory is the smallest any rank sees.
+    """
     if not (is_factorisation(options) and not condensed):
         return False
     if not problem.rigid_motions.floating:
@@ -288,7 +293,7 @@ def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
     if m > INVERSE_MAX_CONTACT_NODES:
         return False
     c = problem.comm.allreduce(int(np.count_nonzero(problem.contact.free_normals)))
-    memory = available_memory() or float("inf")
+    memory = problem.comm.allreduce(available_memory() or float("inf"), op=MPI.MIN)
     return 24.0 * float(c) ** 2 <= INVERSE_MEMORY_FRACTION * memory
 
 
@@ -304,59 +309,84 @@ def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: d
         return False, "settings", "MUMPS factorisation"
     # the smallest figure over the ranks: on one machine every rank sees the same total
     memory = problem.comm.allreduce(available_memory() or float("inf"), op=MPI.MIN)
-    # the mesh's bracket first: where all of it falls on one side of the thresholds,
-    # MUMPS's analysis would only confirm it
-    bracket = predict_factorisation(
-        problem.bounds[1] - problem.bounds[0], mesh_volume(problem.mesh), problem.A.getSize()[0]
+    rule = _StepOneRule(
+        memory=memory,
+        paper=settings.mode == "paper",
+        floating_polish=_polishes_from_factors(problem, settings),
     )
-    low = _factorise_or_not(problem, settings, bracket.flops[0], bracket.memory[0], memory)
-    high = _factorise_or_not(problem, settings, bracket.flops[1], bracket.memory[1], memory)
-    if low[0] == high[0]:
-        # the binding rule: the cheapest cost already iterative, the dearest factorised
-        rule = low[1] if low[0] else high[1]
-        return (
-            low[0],
-            "mesh",
-            (
-                f"{'CG + multigrid' if low[0] else 'MUMPS factorisation'}: the mesh bounds a "
+    # the mesh's bracket first: where both its ends lead to the same choice, MUMPS's
+    # analysis, whose figures lie inside it, would lead there too (the rule is monotone)
+    bracket = predict_factorisation(
+        problem.bounds[1] - problem.bounds[0],
+        mesh_volume(problem.mesh),
+        problem.A.getSize()[0],
+        processes=problem.comm.size,
+    )
+    if bracket is not None:
+        cheap, why_cheap = rule.iterative_at(bracket.flops[0], bracket.memory[0])
+        dear, why_dear = rule.iterative_at(bracket.flops[1], bracket.memory[1])
+        if cheap == dear:
+            # the binding rule: the cheapest cost already iterative, the dearest factorised
+            return (
+                cheap,
+                "mesh",
+                f"{'CG + multigrid' if cheap else 'MUMPS factorisation'}: the mesh bounds a "
                 f"factorisation at {bracket.flops[0]:.1e} to {bracket.flops[1]:.1e} flops and "
-                f"{bracket.memory[0] / 1e9:.2g} to {bracket.memory[1] / 1e9:.2g} GB, {rule} "
-                "(MUMPS's analysis not needed)"
-            ),
-        )
+                f"{bracket.memory[0] / 1e9:.2g} to {bracket.memory[1] / 1e9:.2g} GB, "
+                f"{why_cheap if cheap else why_dear} (MUMPS's analysis not needed)",
+            )
     estimate = mumps_estimate(problem.A, prefix=settings.prefixes["estimate"])
     if estimate is None:
         return False, "fallback", "MUMPS factorisation (no analysis available to compare)"
-    iterative, why = _factorise_or_not(problem, settings, estimate.flops, estimate.memory, memory)
+    iterative, why = rule.iterative_at(estimate.flops, estimate.memory)
     need = f"{estimate.memory / 1e9:.3g} GB and {estimate.flops:.3g} flops"
     return (
         iterative,
         "analysis",
-        (
-            f"{'CG + multigrid' if iterative else 'MUMPS factorisation'}: MUMPS's analysis "
-            f"says a factorisation would need {need} ({why})"
-        ),
+        f"{'CG + multigrid' if iterative else 'MUMPS factorisation'}: MUMPS's analysis "
+        f"says a factorisation would need {need} ({why})",
     )
 
 
-def _factorise_or_not(
-    problem: ContactProblem, settings: ADMMSettings, flops: float, need: float, memory: float
-) -> tuple[bool, str]:
-    """(whether step 1 is iterative, the rule that says so) for a factorisation's cost.
+@dataclass(frozen=True)
+class _StepOneRule:
+    """Multigrid or a factorisation, by what the factorisation would cost.
 
-    Monotone: a factorisation chosen at some cost is chosen at any smaller one.
+    Attributes:
+        memory: The bytes available (the smallest figure over the ranks).
+        paper: The paper's mode: a factorisation wherever it fits.
+        floating_polish: A floating body that a factorised step 1 would polish from its
+            factors (:data:`FLOATING_FACTOR_FLOPS_LIMIT` applies).
     """
-    if need > MEMORY_FRACTION * memory:
-        return True, f"more than {MEMORY_FRACTION:g} of the {memory / 1e9:.3g} GB available"
-    if settings.mode == "paper":
-        # the paper's Algorithm 2 factorises step 1 once: kept wherever it fits
-        return False, "it fits: factorised as the paper's algorithm"
-    if flops > FACTOR_FLOPS_LIMIT and _polishes_from_factors(problem, settings):
-        if flops <= FLOATING_FACTOR_FLOPS_LIMIT:
-            return False, (
-                f"≤ {FLOATING_FACTOR_FLOPS_LIMIT:.0e} flops: a floating body, whose "
-                "polishing reads the step-1 factors"
+
+    memory: float
+    paper: bool
+    floating_polish: bool
+
+    def iterative_at(self, flops: float, need: float) -> tuple[bool, str]:
+        """(whether step 1 is iterative, the rule that says so) at this cost.
+
+        Monotone: a factorisation chosen at some (flops, need) is chosen at any
+        smaller one, and multigrid at any larger one.
+        """
+        if need > MEMORY_FRACTION * self.memory:
+            return True, (
+                f"more than {MEMORY_FRACTION:g} of the {self.memory / 1e9:.3g} GB available"
             )
-    if flops > FACTOR_FLOPS_LIMIT:
-        return True, f"> {FACTOR_FLOPS_LIMIT:.0e} flops, where multigrid is faster"
-    return False, f"≤ {FACTOR_FLOPS_LIMIT:.0e} flops and it fits"
+        if self.paper:
+            # the paper's Algorithm 2 factorises step 1 once: kept wherever it fits
+            return False, "it fits: factorised as the paper's algorithm"
+        if self.floating_polish:
+            if flops > FLOATING_FACTOR_FLOPS_LIMIT:
+                return True, (
+                    f"> {FLOATING_FACTOR_FLOPS_LIMIT:.0e} flops, even for a floating body "
+                    "that would polish from the step-1 factors"
+                )
+            if flops > FACTOR_FLOPS_LIMIT:
+                return False, (
+                    f"≤ {FLOATING_FACTOR_FLOPS_LIMIT:.0e} flops: a floating body, whose "
+                    "polishing reads the step-1 factors"
+                )
+        if flops > FACTOR_FLOPS_LIMIT:
+            return True, f"> {FACTOR_FLOPS_LIMIT:.0e} flops, where multigrid is faster"
+        return False, f"≤ {FACTOR_FLOPS_LIMIT:.0e} flops and it fits"

@@ -266,9 +266,9 @@ class ADMMSettings:
             factorisation per r), ``"iterative"`` (conjugate gradients with multigrid,
             warm-started, to a tolerance tied to the outer residual: an inexact ADMM),
             or ``"auto"``: iterative if ``petsc_options`` choose a Krylov method, or,
-            in 3D, if MUMPS's analysis says the factorisation would not fit in memory
-            or would cost more than the multigrid path (:mod:`admm_dolfinx.admm.plan`);
-            factorised otherwise.
+            in 3D, if the factorisation would not fit in memory or would cost more
+            than the multigrid path (bracketed from the mesh, or MUMPS's analysis near
+            the thresholds: :mod:`admm_dolfinx.admm.plan`); factorised otherwise.
         petsc_options: Options of the step-1 solver (MUMPS Cholesky, or with an
             iterative step 1 CG + GAMG, by default; ``ksp_rtol`` fixes an iterative step
             1's tolerance, which otherwise follows the outer residual by the inexact rule
@@ -510,7 +510,8 @@ class ADMMSettings:
         surface metric), ``projection`` (the surface metric's step 2: the factorisations
         of M + βL_Γ on the free contact nodes), ``polish`` (sparse polishing's
         factorisations), ``schur`` (a private condensed factorisation for r* and
-        polishing), ``estimate`` (MUMPS's analysis, which the plan consults in 3D).
+        polishing), ``estimate`` (MUMPS's analysis, which the plan runs in 3D where the mesh's
+        bracket of the cost does not settle the choice).
         """
         p = self.petsc_options_prefix
         return {
