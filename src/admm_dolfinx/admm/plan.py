@@ -14,7 +14,7 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   ``python benchmarks/scale_3d.py`` measures both sides of it). What it would need is
   bracketed from the mesh (:mod:`~admm_dolfinx.linalg.factor_prediction`), and MUMPS's
   analysis (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) is run only
-  where the bracket straddles a threshold. With ``mode="paper"`` only memory counts:
+  where the bracket's two ends lead to different choices. With ``mode="paper"`` only memory counts:
   the paper's algorithm factorises step 1;
 * r*: dense (from the condensed factorisation), local (no factorisation of the body)
   or factorised, unless the penalty is given, and its eigenvalue tolerance (looser in
@@ -281,10 +281,7 @@ def _polishes_from_factors(problem: ContactProblem, settings: ADMMSettings) -> b
 
 
 def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
-    """Whether T can be read off a factorised step 1 (see ``INVERSE_*``); collective.
-
-    The same answer on every rank: the memory is the smallest any rank sees.
-    """
+    """Whether T can be read off a factorised step 1 (see ``INVERSE_*``); collective."""
     if not (is_factorisation(options) and not condensed):
         return False
     if not problem.rigid_motions.floating:
@@ -293,8 +290,16 @@ def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
     if m > INVERSE_MAX_CONTACT_NODES:
         return False
     c = problem.comm.allreduce(int(np.count_nonzero(problem.contact.free_normals)))
-    memory = problem.comm.allreduce(available_memory() or float("inf"), op=MPI.MIN)
-    return 24.0 * float(c) ** 2 <= INVERSE_MEMORY_FRACTION * memory
+    return 24.0 * float(c) ** 2 <= INVERSE_MEMORY_FRACTION * _smallest_memory(problem)
+
+
+def _smallest_memory(problem: ContactProblem) -> float:
+    """Bytes available, the smallest figure over the ranks (the same on all); collective.
+
+    On one machine every rank sees the same total; the minimum keeps every rank's
+    choice the same where machines differ.
+    """
+    return problem.comm.allreduce(available_memory() or float("inf"), op=MPI.MIN)
 
 
 def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: dict):
@@ -307,10 +312,8 @@ def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: d
         return False, "settings", "MUMPS factorisation"
     if problem.gdim != 3 or settings.condensed is True or settings.polish is True:
         return False, "settings", "MUMPS factorisation"
-    # the smallest figure over the ranks: on one machine every rank sees the same total
-    memory = problem.comm.allreduce(available_memory() or float("inf"), op=MPI.MIN)
     rule = _StepOneRule(
-        memory=memory,
+        memory=_smallest_memory(problem),
         paper=settings.mode == "paper",
         floating_polish=_polishes_from_factors(problem, settings),
     )
