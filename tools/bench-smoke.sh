@@ -33,6 +33,7 @@ run "$py" benchmarks/contact_model.py --quick
 run "$py" benchmarks/scale_3d.py --quick
 run "$py" benchmarks/inner_tolerance.py --quick
 run "$py" benchmarks/factor_prediction.py --quick
+run "$py" benchmarks/floating_3d.py --quick
 run "$py" benchmarks/scale_2d.py --quick
 run "$py" benchmarks/work_precision_adaptive.py --quick
 for b in "${parallel_smoke[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done

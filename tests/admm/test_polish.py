@@ -336,6 +336,40 @@ def test_a_floating_3d_body_keeps_its_factorisation_for_polishing(monkeypatch):
     monkeypatch.setattr(plan_module, "FLOATING_FACTOR_FLOPS_LIMIT", 1.0)
     with ADMMSolver(floating) as solver:
         assert solver.plan.step1 == "iterative"
+        # past both limits the active-set walk solves by multigrid too
+        assert solver.plan.polish == "sparse" and solver.plan.metric == "surface"
+    with ADMMSolver(held) as solver:
+        assert solver.plan.polish == "none"  # a held body creeps not: no walk
+    with ADMMSolver(floating, polish=False) as solver:
+        assert solver.plan.polish == "none"
+
+
+@pytest.mark.parametrize("level", [1, 2])
+def test_a_floating_body_on_the_multigrid_path_is_polished_by_multigrid(level):
+    """The active-set walk of the multigrid path: Â solved by CG + GAMG to
+    POLISH_RTOL_FACTOR × kkt_tol, the polished state handed to step 1 as its start.
+
+    Two iterations as with the factorised step 1 (unpolished, the same step 1 needs
+    well over a hundred), on any partition, and the exact answer: the factorised
+    default's (polished from S_C) to well under the KKT tolerance.
+    """
+    problem = hertz_sphere(level=level).problem()
+    with ADMMSolver(problem) as solver:
+        exact = solver.solve()
+    with ADMMSolver(problem, step1="iterative") as solver:
+        assert solver.plan.polish == "sparse"
+        assert solver.polisher.iterative
+        result = solver.solve()
+        walk = solver.polisher.krylov_iterations
+    assert result.converged and result.kkt.max() <= solver.settings.kkt_tol / 10
+    assert result.polish.kind == "sparse"
+    assert result.polish.polished_at == result.iterations == 2
+    assert result.polish.rounds >= 2 and result.polish.krylov_iterations == walk >= 2
+    # the polished state's step-1 solve starts at its solution: a few Krylov steps
+    assert result.step1.krylov_iterations <= 10
+    u, lam = _global(problem, result.u.x.petsc_vec.array), _global(problem, result.multiplier)
+    assert rel_diff(u, _global(problem, exact.u.x.petsc_vec.array)) <= 1e-8
+    assert rel_diff(lam, _global(problem, exact.multiplier)) <= 1e-8
 
 
 def test_the_compliance_from_the_inverse_block_sums_node_by_node():

@@ -7,6 +7,7 @@ import re
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 from petsc4py import PETSc
 
@@ -132,3 +133,75 @@ def test_a_new_penalty_matrix_is_summed_at_r_zero_and_set_up_afresh_otherwise(pr
         finally:
             moved.destroy()
             recomputed.destroy()
+
+
+def test_a_changed_active_set_adds_its_projected_change_to_the_hierarchy():
+    """The iterative active-set polish moves its multigrid from one guess's Â to the
+    next by adding P_lᵀ Δ P_l (Δ on the rows and columns of the nodes that moved): the
+    coarse operators of PETSc's set-up on the new Â to round-off, without a Galerkin
+    product of the whole Â, and the same solution."""
+    from admm_dolfinx import ADMMSolver
+    from admm_dolfinx.admm.polish_sparse import SparsePolish
+    from admm_dolfinx.linalg.galerkin import sparse_difference
+    from admm_dolfinx.scenes import hertz_sphere
+
+    problem = hertz_sphere(level=1).problem()
+    with ADMMSolver(problem) as solver:
+        lam = solver.solve().multiplier
+    moved, recomputed = (
+        SparsePolish(problem, f"{name}_", iterative_options(None)) for name in ("moved", "fresh")
+    )
+    recomputed._updates = False  # PETSc's set-up on each Â, its interpolation kept
+    PETSc.Log.begin()
+    try:
+        for share in (0.5, 0.1, 0.0):  # growing guesses of the contact set
+            active = lam > share * problem.global_norm(lam, np.inf)
+            before = _galerkin_products()
+            nu_moved, lam_moved, _ = moved._equality_solution(active)
+            products = _galerkin_products() - before
+            nu_fresh, lam_fresh, _ = recomputed._equality_solution(active)
+            assert products == (1 if share == 0.5 else 0)  # the first set-up only
+            levels = [p._ksp.getPC() for p in (moved, recomputed)]
+            assert levels[0].getMGLevels() == levels[1].getMGLevels() >= 3
+            for level in range(levels[0].getMGLevels()):
+                mine, petscs = (pc.getMGSmoother(level).getOperators()[0] for pc in levels)
+                difference = mine.duplicate(copy=True)
+                difference.axpy(-1.0, petscs)
+                assert difference.norm() <= 1e-12 * petscs.norm()
+                difference.destroy()
+            assert np.allclose(lam_moved, lam_fresh, atol=1e-7 * np.abs(lam_fresh).max())
+            assert np.allclose(nu_moved, nu_fresh, atol=1e-7 * np.abs(nu_fresh).max())
+        # Δ holds the changed entries only, and old + Δ is the new matrix
+        old = moved._matrix.duplicate(copy=True)
+        new = old.duplicate(copy=True)
+        new.setValueLocal(0, 0, 1.0, addv=PETSc.InsertMode.ADD_VALUES)
+        new.assemble()
+        delta = sparse_difference(new, old)
+        assert problem.comm.allreduce(delta.getInfo()["nz_used"]) == problem.comm.size
+        old.axpy(1.0, delta, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        old.axpy(-1.0, new)
+        assert old.norm() == 0.0
+        for matrix in (old, new, delta):
+            matrix.destroy()
+    finally:
+        moved.destroy()
+        recomputed.destroy()
+
+
+def test_a_refused_update_sets_the_polish_multigrid_up_afresh(monkeypatch):
+    """Where the projected change cannot be added, every rank sets the multigrid up
+    again on Â, and the polish goes on to the same answer."""
+    import admm_dolfinx.admm.polish_sparse as polish_sparse
+    from admm_dolfinx import ADMMSolver
+    from admm_dolfinx.scenes import hertz_sphere
+
+    problem = hertz_sphere(level=0).problem()
+    with ADMMSolver(problem, step1="iterative") as solver:
+        expected = solver.solve()
+    monkeypatch.setattr(polish_sparse, "add_to_hierarchy", lambda *args: False)
+    with ADMMSolver(problem, step1="iterative") as solver:
+        result = solver.solve()
+        assert solver.polisher._updates is (result.polish.rounds == 1)
+    assert result.polish.polished_at == 2 and result.kkt.max() <= 1e-6
+    u, v = result.u.x.petsc_vec, expected.u.x.petsc_vec
+    assert (u - v).norm() <= 1e-8 * v.norm()

@@ -25,6 +25,7 @@ from petsc4py import PETSc
 from admm_dolfinx._logging import get_logger, progress
 from admm_dolfinx.admm.anderson import AndersonMixer
 from admm_dolfinx.admm.inexact import InexactRule
+from admm_dolfinx.admm.polish_sparse import SparsePolish
 from admm_dolfinx.admm.residuals import HISTORY_KEYS, IterationResiduals, ResidualMeter
 from admm_dolfinx.admm.result import Step1Info
 from admm_dolfinx.operators.penalised import IterativeOperator
@@ -122,7 +123,19 @@ class Iteration:
         self.step.add_force(self._b, p_in, r)
         if self.inexact is not None:
             assert isinstance(self.step1, IterativeOperator)
-            self.step1.set_tolerance(self.inexact.tolerance(k, self.last_residual))
+            tolerance = self.inexact.tolerance(k, self.last_residual)
+            polisher = self.polisher
+            if (
+                self.proposal == POLISHED
+                and isinstance(polisher, SparsePolish)
+                and polisher.displacement is not None
+            ):
+                # the polished state is a fixed point and its u the solution of this
+                # step 1: start there, and solve as accurately as the polisher did
+                x.array_w[:] = polisher.displacement
+                x.ghostUpdate(PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+                tolerance = min(tolerance, polisher.solve_rtol)
+            self.step1.set_tolerance(tolerance)
         self.step1.solve(self._b, x)
         self._nu = problem.apply_normal(x)
         # steps 2-3, with over-relaxation

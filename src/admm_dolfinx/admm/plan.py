@@ -23,7 +23,9 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   compliance read off step 1's own factors by MUMPS's selected inverse entries: a 3D
   body that the contact alone holds, Γ_C past the condensed rule but
   within :data:`INVERSE_MAX_CONTACT_NODES` and :data:`INVERSE_MEMORY_FRACTION`),
-  sparse (2D, factorisations of the body), or none;
+  sparse (2D, factorisations of the body; or multigrid solves of the body, for one
+  that the contact alone holds on the multigrid path, where the ADMM alone builds the
+  contact zone a few nodes per iteration), or none;
 * the penalty metric: the paper's r M, or the surface metric r(M + βL_Γ) (3D);
 * an iterative step 1's inner tolerances (:mod:`admm_dolfinx.admm.inexact`): σ by
   whether the Dirichlet conditions hold the body (its outer iteration contracts fast)
@@ -184,6 +186,11 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     elif may_polish and (auto or settings.polish) and gdim == 2 and factor:
         polish = "sparse"
         reasons.append("Γ_C too large for dense polishing: sparse factorisations")
+    elif may_polish and auto and step1 == "iterative" and problem.rigid_motions.floating:
+        polish = "sparse"
+        reasons.append(
+            "a floating body on the multigrid path: the active-set walk solves by multigrid"
+        )
     else:
         polish = "none"
     metric = "mass"
@@ -199,7 +206,7 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
         and gdim == 3
         and auto
         and settings.mode == "accelerated"
-        and polish == "none"
+        and polish in ("none", "sparse")  # the sparse polish does not depend on r
     ):
         metric = "surface"
         reasons.append("3D: the surface metric keeps the iteration count flat")

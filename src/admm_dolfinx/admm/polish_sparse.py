@@ -12,9 +12,18 @@ active nodes (:func:`~admm_dolfinx.linalg.contact_space.projected_stiffness`):
 u = u_g + w, with u_g the prescribed normal displacements and w the solution of
 Â w = P(f − A u_g), Â = P A P + c N_𝒜ᵀN_𝒜 (A with the active normal rows and columns
 replaced by c times the identity, in rotated coordinates). λ on 𝒜 then follows from
-the residual f − A u = NᵀMλ. One sparse numeric factorisation of Â per guess (its
-sparsity is A's, so the symbolic analysis is done once); distributed like step 1, on
-any partition.
+the residual f − A u = NᵀMλ. Â is solved like step 1:
+
+* **factorised** (a factorised step 1): one sparse numeric factorisation of Â per
+  guess (its sparsity is A's, so the symbolic analysis is done once);
+* **iterative** (the multigrid path, a body too large to factorise): conjugate
+  gradients preconditioned by smoothed-aggregation multigrid with A's rigid body
+  modes, the hierarchy built on the first Â and kept (only the Galerkin coarse
+  operators follow the next guesses), each solve started from the previous guess's
+  and stopped at :data:`POLISH_RTOL_FACTOR` × ``kkt_tol``: the signs the walk reads,
+  and the KKT residuals of the state it returns, are then those of the exact solve.
+
+Distributed like step 1, on any partition.
 
 As the dense polisher, it corrects the guess by primal-dual active-set steps (nodes
 with λ < 0 leave 𝒜, nodes that penetrate join it; at most :data:`MAX_SPARSE_ROUNDS`
@@ -38,14 +47,25 @@ from petsc4py import PETSc
 
 from admm_dolfinx._logging import get_logger
 from admm_dolfinx.admm.active_set import ActiveSetWalk
+from admm_dolfinx.admm.inexact import TAU_FLOOR
 from admm_dolfinx.admm.polish_dense import SIGN_TOL
 from admm_dolfinx.linalg.contact_space import NodalMap, projected_stiffness
-from admm_dolfinx.linalg.petsc import check_solve, create_factor_solver
+from admm_dolfinx.linalg.galerkin import add_to_hierarchy, sparse_difference
+from admm_dolfinx.linalg.petsc import check_solve, create_factor_solver, factor_options
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
-__all__ = ["MAX_SPARSE_ROUNDS", "SparsePolish"]
+__all__ = ["MAX_SPARSE_ROUNDS", "POLISH_RTOL_FACTOR", "SparsePolish"]
 
 logger = get_logger(__name__)
+
+#: An iterative polish solves Â to this factor times the KKT tolerance (relative
+#: residual): its displacement error is then well below what the final KKT check
+#: measures.
+POLISH_RTOL_FACTOR = 1e-3
+
+#: An iterative polish's sign conditions hold to this factor times its solves'
+#: relative residual (SIGN_TOL where that is smaller).
+SIGN_FACTOR = 10.0
 
 #: Primal-dual active-set corrections of one guess. Where the contact zone's edge
 #: moves by a node per round (a beam lifting off near a clamp) it needs more rounds
@@ -61,12 +81,19 @@ class SparsePolish:
 
     Args:
         problem: The contact problem.
-        prefix: Options prefix of the factorisations (``{prefix}`` + MUMPS options).
-        petsc_options: Options of the factorisation (MUMPS Cholesky by default).
+        prefix: Options prefix of the solver of Â (``{prefix}`` + PETSc options).
+        petsc_options: Options of that solver: MUMPS Cholesky by default; Krylov
+            options (``ksp_type`` other than ``preonly``, as an iterative step 1's)
+            make the polish iterative.
+        kkt_tol: The KKT tolerance of the solve; an iterative polish solves Â to
+            :data:`POLISH_RTOL_FACTOR` times it.
 
     Attributes:
         attempts: Guesses tried since :meth:`reset`.
-        rounds: Factorisations since :meth:`reset`.
+        rounds: Solves with Â (factorisations, when factorised) since :meth:`reset`.
+        krylov_iterations: Krylov iterations of an iterative polish since :meth:`reset`.
+        displacement: The displacement u of the last state :meth:`attempt` returned
+            (owned values), or None: the iteration starts its evaluation there.
         setup_time: 0 (nothing is set up per penalty).
         skipped: Attempts skipped for time since :meth:`reset`.
         time: Seconds spent since :meth:`reset`.
@@ -77,11 +104,23 @@ class SparsePolish:
         problem: ContactProblem,
         prefix: str,
         petsc_options: Mapping[str, Any] | None = None,
+        kkt_tol: float = 1e-6,
     ):
         self.problem = problem
         self.comm: MPI.Comm = problem.comm
         self.prefix = prefix
         self._options = dict(petsc_options or {})
+        #: Whether Â is solved by a Krylov method (the multigrid path).
+        self.iterative = factor_options(self._options).get("ksp_type") != "preonly"
+        #: The relative residual an iterative polish solves Â to.
+        self.solve_rtol = max(TAU_FLOOR, POLISH_RTOL_FACTOR * kkt_tol)
+        if self.iterative:
+            self._options["ksp_rtol"] = self.solve_rtol
+        self.displacement: npt.NDArray[np.float64] | None = None
+        self.krylov_iterations = 0
+        self._start: PETSc.Vec | None = None
+        #: Whether the multigrid of Â follows the guesses by projected changes.
+        self._updates = True
         #: Primal-dual active-set corrections per guess.
         self.max_rounds = MAX_SPARSE_ROUNDS
         self.penalty = float("nan")
@@ -99,15 +138,16 @@ class SparsePolish:
     def reset(self) -> None:
         """Start a solve: forget the walk's steps; collective."""
         self._walk.clear()
-        self.attempts = self.rounds = self.skipped = 0
+        self.attempts = self.rounds = self.skipped = self.krylov_iterations = 0
+        self.displacement = None
         self.time = 0.0
 
     def destroy(self) -> None:
         """Free the factorisation; collective."""
-        for obj in (self._ksp, self._matrix):
+        for obj in (self._ksp, self._matrix, self._start):
             if obj is not None:
                 obj.destroy()
-        self._ksp = self._matrix = None
+        self._ksp = self._matrix = self._start = None
 
     # ------------------------------------------------------------------ attempt
     def attempt(
@@ -139,25 +179,32 @@ class SparsePolish:
         finite = np.isfinite(gap)
         active = (multiplier > 0.0) & finite
 
+        # an iterative solve's λ and N u are as accurate as its residual: signs below
+        # that are noise, not moves
+        tolerance = max(SIGN_TOL, SIGN_FACTOR * self.solve_rtol) if self.iterative else SIGN_TOL
+
         def step(active):
-            nu, lam = self._equality_solution(active)
+            nu, lam, u = self._equality_solution(active)
             self.rounds += 1
-            lam_tol = SIGN_TOL * self.problem.global_norm(lam, np.inf)
+            lam_tol = tolerance * self.problem.global_norm(lam, np.inf)
             scale = max(
                 self.problem.global_norm(nu, np.inf),
                 self.problem.global_norm(np.where(finite, gap, 0.0), np.inf),
             )
             leave = active & (lam < -lam_tol)
-            join = ~active & finite & (nu > gap + SIGN_TOL * scale)
+            join = ~active & finite & (nu > gap + tolerance * scale)
             changes = self.comm.allreduce(int(leave.sum() + join.sum()), op=MPI.SUM)
             if changes == 0:
-                return (np.minimum(nu, gap), np.where(active, np.maximum(lam, 0.0), 0.0)), None
+                return (np.minimum(nu, gap), np.where(active, np.maximum(lam, 0.0), 0.0), u), None
             return None, (active & ~leave) | join
 
         outcome, rounds = self._walk.walk(active, step, self.max_rounds)
         self.attempts += int(rounds > 0)
         self.time += time.perf_counter() - t0
-        return outcome
+        if outcome is None:
+            return None
+        p, lam, self.displacement = outcome
+        return p, lam
 
     def _key(self, active: npt.NDArray[np.bool_]) -> bytes:
         """A digest of the global active set, the same on every rank; collective."""
@@ -177,8 +224,34 @@ class SparsePolish:
             )
         return self._ksp
 
+    def _update_multigrid(self, ksp: PETSc.KSP, hat: PETSc.Mat) -> None:
+        """Make the multigrid that of Â, its hierarchy kept; collective.
+
+        Â of the next guess differs from the last one in the rows and columns of the
+        nodes that joined or left 𝒜: the coarse operators take that change, projected
+        (:func:`~admm_dolfinx.linalg.galerkin.add_to_hierarchy`), instead of PETSc's
+        Galerkin products of the whole Â. Where that is not possible (another
+        preconditioner than multigrid, a pattern PETSc would not add) it is set up
+        afresh on Â.
+        """
+        assert self._matrix is not None
+        pc = ksp.getPC()
+        if self._updates and pc.getType() in (PETSc.PC.Type.GAMG, PETSc.PC.Type.MG):
+            delta = sparse_difference(hat, self._matrix)
+            hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            try:
+                if add_to_hierarchy(pc, self._matrix, delta):
+                    return
+            finally:
+                delta.destroy()
+            self._updates = False  # the same on every rank
+        hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        pc.setReusePreconditioner(False)
+        ksp.setOperators(self._matrix)
+        ksp.setUp()
+
     def _equality_solution(self, active: npt.NDArray[np.bool_]):
-        """(N u, λ) of the problem with (N u)_j = g_j on ``active``; collective."""
+        """(N u, λ, u) of the problem with (N u)_j = g_j on ``active``; collective."""
         problem, c = self.problem, self.problem.contact
         bs = problem.V.dofmap.index_map_bs
         nodes = c.nodes[active]
@@ -189,6 +262,8 @@ class SparsePolish:
             if self._matrix is None:
                 self._matrix = hat.duplicate(copy=True)
                 self._matrix.setOption(PETSc.Mat.Option.SPD, True)
+                # duplicate() drops the rigid-body near null space that multigrid needs
+                self._matrix.setNearNullSpace(problem.A.getNearNullSpace())
                 ksp = self._ksp = create_factor_solver(
                     self._matrix,
                     self.prefix,
@@ -196,6 +271,10 @@ class SparsePolish:
                     problem.gdim,
                     what="the sparse active-set polish",
                 )
+                ksp.setInitialGuessNonzero(self.iterative)
+            elif self.iterative:
+                ksp = self._factorisation()
+                self._update_multigrid(ksp, hat)
             else:
                 hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
                 ksp = self._factorisation()
@@ -206,25 +285,38 @@ class SparsePolish:
         # u_g: the prescribed normal displacement ĝ_j = g_j − (n_j − ñ_j)·u_D at active
         # nodes (the Dirichlet part of the normal), along ñ_j / |ñ_j|²
         x_g, rhs, x, work = (problem.create_vector() for _ in range(4))
+        scale = 1.0 / np.einsum("ij,ij->i", ntilde, ntilde)
         try:
             x_g.set(0.0)
             fixed_part = problem.prescribed_normal_displacement()[active]
             target = c.gap[active] - fixed_part
-            nodal.scatter(target, x_g, 1.0 / np.einsum("ij,ij->i", ntilde, ntilde))
+            nodal.scatter(target, x_g, scale)
             problem.A.mult(x_g, work)
             problem.load_vector().copy(rhs)
             rhs.axpy(-1.0, work)  # f − A u_g
             # P: remove the active normal components
-            nodal.scatter(nodal.gather(rhs), work, 1.0 / np.einsum("ij,ij->i", ntilde, ntilde))
+            nodal.scatter(nodal.gather(rhs), work, scale)
             rhs.axpy(-1.0, work)
+            if self.iterative:  # start from the previous guess's w, projected
+                if self._start is None:
+                    self._start = problem.create_vector()
+                    self._start.set(0.0)
+                self._start.copy(x)
+                nodal.scatter(nodal.gather(x), work, scale)
+                x.axpy(-1.0, work)
             ksp.solve(rhs, x)
             check_solve(ksp, "the sparse active-set polish")
+            if self.iterative:
+                assert self._start is not None
+                x.copy(self._start)
+                self.krylov_iterations += ksp.getIterationNumber()
             x.axpy(1.0, x_g)
             problem.A.mult(x, work)
             work.aypx(-1.0, problem.load_vector())  # f − A u = NᵀMλ on the free dofs
             lam = problem.multiplier_from_residual(work)
             nu = problem.apply_normal(x)
+            u = x.array_r.copy()
         finally:
             for vec in (x_g, rhs, x, work):
                 vec.destroy()
-        return nu, np.where(active, lam, 0.0)
+        return nu, np.where(active, lam, 0.0), u

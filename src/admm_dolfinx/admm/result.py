@@ -110,13 +110,17 @@ class PolishInfo:
     """What active-set polishing did in a solve.
 
     Attributes:
-        kind: ``"dense"`` (the compliance of Γ_C) or ``"sparse"`` (factorisations).
+        kind: ``"dense"`` (the compliance of Γ_C), ``"inverse"`` (the same, read off
+            step 1's factors) or ``"sparse"`` (solves with the body: factorisations, or
+            multigrid on the multigrid path).
         polished_at: The iteration that evaluated the polished state, or None.
         attempts: Guesses tried.
-        rounds: Active-set rounds (dense solves or sparse factorisations).
+        rounds: Active-set rounds (dense solves, or solves with the body).
         skipped: Attempts skipped because polishing had taken longer than the rest of
             the iterations.
         time: Seconds within the iterations.
+        krylov_iterations: Krylov iterations of the rounds' solves (0 where they are
+            direct).
     """
 
     kind: str
@@ -125,6 +129,7 @@ class PolishInfo:
     rounds: int
     skipped: int
     time: float
+    krylov_iterations: int = 0
 
     def __getitem__(self, name: str) -> Any:
         """Dictionary-style access to the fields."""
@@ -354,7 +359,9 @@ class ADMMResult:
             lines.append(
                 f"  polish ({p.kind}): "
                 f"{'exact state from iteration ' + str(at) if at else 'not used'}"
-                f" ({p.attempts} attempts, {p.rounds} active-set rounds, {p.time:.3f} s)"
+                f" ({p.attempts} attempts, {p.rounds} active-set rounds"
+                + (f", {p.krylov_iterations} Krylov iterations" if p.krylov_iterations else "")
+                + f", {p.time:.3f} s)"
             )
         if self.warning:
             lines.append(f"  WARNING: {self.warning}")

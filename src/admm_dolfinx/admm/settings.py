@@ -253,13 +253,15 @@ class ADMMSettings:
             grid of factors of 2 (``solver.plan.penalty_tol`` is the one used).
         penalty_metric: The norm of the penalty term: ``"mass"`` (the paper's r M),
             ``"surface"`` (r(M + βL_Γ), 3D), or ``"auto"`` (surface in 3D with an
-            automatic penalty and no polishing, mass otherwise).
+            automatic penalty and no polishing, or the multigrid path's, which does
+            not depend on r; mass otherwise).
         condensed: Step 1 through one factorisation of A condensed onto Γ_C (None:
             where it also gives r*, i.e. 2D or a floating 3D body whose S_C is cheap,
             one process, ``penalty="auto"``, and not with the surface metric).
         polish: Active-set polishing (None: with ``penalty="auto"`` and a factorised
             step 1, in 2D, and in 3D for a body that the contact alone holds, where
-            S_C is cheap; True also in 3D; False: never).
+            S_C is cheap; with an iterative step 1, for a body that the contact alone
+            holds, by multigrid solves; True also in 3D; False: never).
         polish_rounds: New primal-dual active-set corrections per dense polishing
             attempt (an attempt that joins an earlier walk resumes it).
         step1: How step 1 solves with A + rK: ``"factorised"`` (MUMPS Cholesky, one

@@ -251,7 +251,12 @@ class ADMMSolver:
                     problem, self.operator, rounds=s.polish_rounds
                 )
             elif plan.polish == "sparse":
-                self.polisher = SparsePolish(problem, prefixes["polish"], None)
+                self.polisher = SparsePolish(
+                    problem,
+                    prefixes["polish"],
+                    plan.step1_options if plan.step1 == "iterative" else None,
+                    kkt_tol=s.kkt_tol,
+                )
             self._time_schur = private.timings["factorization"] if private else 0.0
             penalty = s.penalty  # a number unless "auto" (then r* or the surface r below)
             multigrid = None
@@ -620,6 +625,9 @@ class ADMMSolver:
                 rounds=polisher.rounds,
                 skipped=polisher.skipped,
                 time=polisher.time,
+                krylov_iterations=(
+                    polisher.krylov_iterations if isinstance(polisher, SparsePolish) else 0
+                ),
             )
         converged = loop.status == "converged"
         penetration = obstacle_penetration(problem, u.x.array, lam, self.settings.kkt_tol)

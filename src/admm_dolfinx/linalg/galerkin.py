@@ -14,13 +14,20 @@ level smoothers (Chebyshev's eigenvalue bounds, Jacobi's diagonal) and the coars
 solve are then set up again on the new operators, as PETSc's own set-up would, and
 the multigrid preconditioner is told to keep its hierarchy. The operators agree with
 PETSc's recomputed ones to round-off (``tests/linalg/test_galerkin.py``).
+
+The same holds for any change of the fine operator: :func:`add_to_hierarchy` adds
+P_lᵀ Δ P_l to each coarse operator for a change Δ, which costs little where Δ is
+supported on few rows and columns (the nodes that join or leave the active set of
+:mod:`admm_dolfinx.admm.polish_sparse`); :func:`sparse_difference` forms such a Δ.
 """
 
 from __future__ import annotations
 
+import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
-__all__ = ["CoarsePenalty"]
+__all__ = ["CoarsePenalty", "add_to_hierarchy", "sparse_difference"]
 
 
 class CoarsePenalty:
@@ -73,11 +80,7 @@ class CoarsePenalty:
                     self._projected[level],
                     structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN,
                 )
-            operator.setOption(PETSc.Mat.Option.SPD, True)  # axpy forgets it
-            if smoother.getType() == PETSc.KSP.Type.CHEBYSHEV:
-                _estimate_bounds_afresh(smoother)
-            smoother.setOperators(operator, operator)
-            smoother.setUp()  # as PCSetUp_MG: Jacobi, Chebyshev's bounds, coarse LU
+            _set_up_smoother(smoother, operator)
         self._coefficient = float(r)
         pc.setReusePreconditioner(True)  # the hierarchy is current: no PETSc set-up
 
@@ -97,6 +100,99 @@ class CoarsePenalty:
     def destroy(self) -> None:
         """Free the projected matrices (the preconditioner is its owner's)."""
         self._free_projected()
+
+
+def add_to_hierarchy(pc: PETSc.PC, fine: PETSc.Mat, delta: PETSc.Mat) -> bool:
+    """Make a kept multigrid hierarchy that of ``fine``, changed by ``delta``; collective.
+
+    Each coarse operator gets P_lᵀ Δ P_l (each from the next finer one's), and the
+    smoothers and the coarse solve are set up again on the new operators, as
+    :meth:`CoarsePenalty.move` does for a change of r. The products' patterns lie
+    within the coarse operators' (Δ's lies within the fine operator's, and PETSc's
+    products keep every structural entry); should PETSc refuse a sum on some rank
+    nonetheless, every rank learns it before the next collective step.
+
+    Args:
+        pc: A ``PCGAMG`` (``PCMG``) set up on ``fine`` − ``delta``, whose operators
+            have not been changed since but by this function.
+        fine: The fine operator, the same matrix object the preconditioner was set up
+            with, its values already changed by ``delta``.
+        delta: The change Δ of the fine operator (sparse: the products are cheap
+            where few of its rows are non-empty).
+
+    Returns:
+        Whether the hierarchy is now ``fine``'s; if not, its coarse operators are
+        spoiled and the caller sets the preconditioner up afresh.
+    """
+    comm = fine.getComm().tompi4py()
+    levels = pc.getMGLevels()
+    projected = delta
+    try:
+        for level in range(levels - 1, -1, -1):
+            smoother = pc.getMGSmoother(level)
+            if level == levels - 1:
+                operator = fine
+            else:
+                coarser = projected.ptap(pc.getMGInterpolation(level + 1))
+                if projected is not delta:
+                    projected.destroy()
+                projected = coarser
+                operator = smoother.getOperators()[0]
+                refused = False
+                try:
+                    operator.axpy(
+                        1.0, projected, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN
+                    )
+                except PETSc.Error:
+                    refused = True
+                if comm.allreduce(refused, op=MPI.LOR):
+                    return False
+            _set_up_smoother(smoother, operator)
+    finally:
+        if projected is not delta:
+            projected.destroy()
+    pc.setReusePreconditioner(True)  # the hierarchy is current: no PETSc set-up
+    return True
+
+
+def sparse_difference(new: PETSc.Mat, old: PETSc.Mat) -> PETSc.Mat:
+    """``new`` − ``old`` with only its nonzero entries stored; collective.
+
+    Both must have the same parallel layout and the same sparsity pattern (a matrix
+    and an earlier copy of it), so that the difference is taken entry by entry.
+
+    Returns:
+        Δ (the caller destroys it).
+
+    Raises:
+        ValueError: If the patterns differ (on any rank: raised on every rank).
+    """
+    rows, cols, values = new.getValuesCSR()
+    rows_old, cols_old, values_old = old.getValuesCSR()
+    same = np.array_equal(rows, rows_old) and np.array_equal(cols, cols_old)
+    if not new.getComm().tompi4py().allreduce(same, op=MPI.LAND):
+        raise ValueError("sparse_difference needs two matrices of the same pattern")
+    change = values - values_old
+    keep = change != 0.0
+    n_rows = rows.size - 1
+    row_of = np.repeat(np.arange(n_rows), np.diff(rows))
+    indptr = np.zeros(rows.size, dtype=PETSc.IntType)
+    np.cumsum(np.bincount(row_of[keep], minlength=n_rows), out=indptr[1:])
+    delta = PETSc.Mat().createAIJ(
+        new.getSizes(),
+        csr=(indptr, cols[keep].astype(PETSc.IntType), change[keep]),
+        comm=new.getComm(),
+    )
+    return delta
+
+
+def _set_up_smoother(smoother: PETSc.KSP, operator: PETSc.Mat) -> None:
+    """Set a level's smoother (or the coarse solve) up on its changed operator."""
+    operator.setOption(PETSc.Mat.Option.SPD, True)  # axpy forgets it
+    if smoother.getType() == PETSc.KSP.Type.CHEBYSHEV:
+        _estimate_bounds_afresh(smoother)
+    smoother.setOperators(operator, operator)
+    smoother.setUp()  # as PCSetUp_MG: Jacobi, Chebyshev's bounds, coarse LU
 
 
 def _estimate_bounds_afresh(smoother: PETSc.KSP) -> None:
