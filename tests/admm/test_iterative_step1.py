@@ -267,3 +267,27 @@ def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):
     assert len(analyses) == 2
     with ADMMSolver(problem, step1="factorised") as solver:  # the user's choice stands
         assert solver.plan.step1 == "factorised"
+
+
+def test_a_floating_body_on_the_multigrid_path_factorises_nothing(monkeypatch):
+    """r*'s λ_max of a floating body solves with A + r_a K (A alone is singular): on the
+    multigrid path by step 1's own CG + GAMG, never by a factorisation of the body
+    that the plan found too large for one. λ_max is the factorised one's to well
+    under the eigenvalue tolerance, and the solve is exact (polished)."""
+    import admm_dolfinx.penalty.estimate as estimate_module
+
+    problem = hertz_sphere(level=1).problem()
+    with ADMMSolver(problem, step1="factorised", polish=False) as solver:
+        reference = solver.penalty_estimate
+
+    def no_factorisation(*args, **kwargs):
+        raise AssertionError("r* factorised the body on the multigrid path")
+
+    monkeypatch.setattr(estimate_module, "PenalisedOperator", no_factorisation)
+    with ADMMSolver(problem, step1="iterative") as solver:
+        estimate = solver.penalty_estimate
+        assert estimate.details["lambda_max_method"] == "factorised"  # the same Krylov–Schur
+        result = solver.solve()
+    assert estimate.lambda_max == pytest.approx(reference.lambda_max, rel=1e-6)
+    assert estimate.r == pytest.approx(reference.r, rel=1e-6)
+    assert result.converged and result.polish.polished_at == 2

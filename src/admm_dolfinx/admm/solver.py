@@ -275,8 +275,15 @@ class ADMMSolver:
                 )
             if plan.penalty != "given":
                 # a condensed operator gives r* densely and serves the ADMM at r*; a
-                # factorised one shares its symbolic analysis with r*'s factorisations
-                shared = schur_source or (self.operator if plan.step1 == "factorised" else None)
+                # factorised one shares its symbolic analysis with r*'s factorisations;
+                # a floating body's λ_max solves with A + r_a K, by step 1's multigrid on
+                # the multigrid path (never a factorisation of a body too large for one)
+                shared = schur_source or (
+                    self.operator
+                    if plan.step1 == "factorised"
+                    or (plan.step1 == "iterative" and problem.rigid_motions.floating)
+                    else None
+                )
                 assert plan.penalty_tol is not None  # resolved whenever r* is computed
                 self.penalty_estimate = estimate_penalty(
                     problem,
