@@ -22,7 +22,7 @@ from admm_dolfinx.scenes.library import example1
 
 from conftest import problem_from
 
-pytestmark = [pytest.mark.timeout(60), pytest.mark.mpi3, pytest.mark.mpi4]
+pytestmark = [pytest.mark.timeout(60), pytest.mark.mpi3]
 COMM = MPI.COMM_WORLD
 LAST = COMM.size - 1
 

@@ -21,7 +21,7 @@ from admm_dolfinx.scenes.material import LinearElastic
 from independent import assert_honest, residuals
 from partitions import pressed_box
 
-pytestmark = [pytest.mark.timeout(120), pytest.mark.mpi3, pytest.mark.mpi4]
+pytestmark = [pytest.mark.timeout(120), pytest.mark.mpi3]
 COMM = MPI.COMM_WORLD
 
 
