@@ -196,22 +196,20 @@ def test_step1_settings_conflicts_raise(given, message):
 
 
 @pytest.mark.parametrize("paper", [False, True])
-@pytest.mark.parametrize("floating_polish", [False, True])
-def test_the_step1_rule_is_monotone_in_the_cost(paper, floating_polish):
+def test_the_step1_rule_is_monotone_in_the_cost(paper):
     """What makes the mesh's bracket enough: a factorisation chosen at some (flops,
     memory) is chosen at every smaller cost, so where both ends of the bracket choose
     alike, any cost inside it (MUMPS's) chooses the same. Checked on a grid that
-    crosses every threshold (flop limits, memory), in every mode."""
-    rule = plan_module._StepOneRule(memory=8e9, paper=paper, floating_polish=floating_polish)
+    crosses every threshold (the flop limit, memory), in every mode."""
+    rule = plan_module._StepOneRule(memory=8e9, paper=paper)
     flops = np.geomspace(1e8, 1e15, 29)
     memory = np.geomspace(1e7, 1e11, 17)
     iterative = np.array([[rule.iterative_at(f, m)[0] for m in memory] for f in flops])
     assert np.all(np.diff(iterative.astype(int), axis=0) >= 0)  # more flops: never back
     assert np.all(np.diff(iterative.astype(int), axis=1) >= 0)  # more memory: never back
     assert not iterative[0, 0] and iterative[-1, -1]
-    # the floating body's limit, the held body's, and only memory in the paper's mode
-    at_5e11 = rule.iterative_at(5e11, 1e8)[0]
-    assert at_5e11 == (not paper and not floating_polish)
+    # the flop limit, and only memory in the paper's mode
+    assert rule.iterative_at(5e10, 1e8)[0] is False
     assert rule.iterative_at(5e12, 1e8)[0] == (not paper)
 
 

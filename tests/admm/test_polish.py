@@ -318,25 +318,24 @@ def test_a_floating_3d_body_past_the_condensed_rule_polishes_from_the_step1_fact
     assert rel_diff(u, _global(problem, tight.u.x.array)) <= 1e-8
 
 
-def test_a_floating_3d_body_keeps_its_factorisation_for_polishing(monkeypatch):
-    """Past FACTOR_FLOPS_LIMIT a held body takes multigrid; a floating one that would
-    polish from its factors keeps them up to FLOATING_FACTOR_FLOPS_LIMIT."""
+def test_a_floating_3d_body_past_the_flop_limit_is_polished_on_the_multigrid_path(
+    monkeypatch,
+):
+    """Past FACTOR_FLOPS_LIMIT a floating body takes multigrid as a held one does, and
+    is polished there (its walk solves by multigrid): it no longer keeps a
+    factorisation for polishing from its factors."""
     import admm_dolfinx.admm.plan as plan_module
 
     _no_condensed_rule(monkeypatch)
+    held, floating = example3(level=0).problem(), hertz_sphere(level=0).problem()
+    with ADMMSolver(floating) as solver:
+        assert solver.plan.step1 == "factorised" and solver.plan.polish == "inverse"
     monkeypatch.setattr(plan_module, "FACTOR_FLOPS_LIMIT", 1.0)
-    held = example3(level=0).problem()
     with ADMMSolver(held) as solver:
         assert solver.plan.step1 == "iterative"
-    floating = hertz_sphere(level=0).problem()
     with ADMMSolver(floating) as solver:
-        plan = solver.plan
-    assert plan.step1 == "factorised" and plan.polish == "inverse"
-    assert "floating body" in plan.describe() and plan.step1_basis == "mesh"
-    monkeypatch.setattr(plan_module, "FLOATING_FACTOR_FLOPS_LIMIT", 1.0)
-    with ADMMSolver(floating) as solver:
-        assert solver.plan.step1 == "iterative"
-        # past both limits the active-set walk solves by multigrid too
+        assert solver.plan.step1 == "iterative" and solver.plan.step1_basis == "mesh"
+        # the active-set walk solves by multigrid
         assert solver.plan.polish == "sparse" and solver.plan.metric == "surface"
     with ADMMSolver(held) as solver:
         assert solver.plan.polish == "none"  # a held body creeps not: no walk

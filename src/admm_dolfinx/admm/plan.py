@@ -53,7 +53,6 @@ from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = [
     "FACTOR_FLOPS_LIMIT",
-    "FLOATING_FACTOR_FLOPS_LIMIT",
     "INVERSE_MAX_CONTACT_NODES",
     "INVERSE_MEMORY_FRACTION",
     "MEMORY_FRACTION",
@@ -66,13 +65,10 @@ __all__ = [
 MEMORY_FRACTION = 0.5
 #: In 3D, a factorisation that would cost more operations than this is
 #: slower than the multigrid path on the whole solve (the crossover of
-#: ``python benchmarks/scale_3d.py``).
+#: ``python benchmarks/scale_3d.py``), for a floating body too, which the multigrid
+#: path polishes (``python benchmarks/floating_3d.py`` compares it with the factorised
+#: path and its inverse entries).
 FACTOR_FLOPS_LIMIT = 1e11
-#: A floating 3D body that would polish from its step-1 factors (``polish="inverse"``)
-#: keeps the factorisation up to this many operations: unpolished, its ADMM builds the
-#: contact zone a few nodes per iteration (``python benchmarks/polish_3d.py --scene
-#: hertz_sphere`` measures both at level 3).
-FLOATING_FACTOR_FLOPS_LIMIT = 1e12
 #: Polishing from step 1's factors (``polish="inverse"``) holds the c × c block of
 #: (A + rK)⁻¹ (c ≤ 3m dofs of Γ_C) and its pattern, about 24 c² bytes: at most this
 #: fraction of the memory available...
@@ -275,18 +271,6 @@ def make_plan(problem: ContactProblem, settings: ADMMSettings) -> SolverPlan:
     )
 
 
-def _polishes_from_factors(problem: ContactProblem, settings: ADMMSettings) -> bool:
-    """Whether a factorised step 1 would polish from its factors (``"inverse"``)."""
-    return (
-        settings.penalty == "auto"
-        and settings.polish is not False
-        and settings.penalty_metric != "surface"
-        and settings.condensed is not True
-        and problem.gdim == 3
-        and _inverse_applies(problem, {}, False)
-    )
-
-
 def _inverse_applies(problem: ContactProblem, options: dict, condensed: bool):
     """Whether T can be read off a factorised step 1 (see ``INVERSE_*``); collective."""
     if not (is_factorisation(options) and not condensed):
@@ -319,11 +303,7 @@ def _iterative_step1(problem: ContactProblem, settings: ADMMSettings, options: d
         return False, "settings", "MUMPS factorisation"
     if problem.gdim != 3 or settings.condensed is True or settings.polish is True:
         return False, "settings", "MUMPS factorisation"
-    rule = _StepOneRule(
-        memory=_smallest_memory(problem),
-        paper=settings.mode == "paper",
-        floating_polish=_polishes_from_factors(problem, settings),
-    )
+    rule = _StepOneRule(memory=_smallest_memory(problem), paper=settings.mode == "paper")
     # the mesh's bracket first: where both its ends lead to the same choice, MUMPS's
     # analysis, whose figures lie inside it, would lead there too (the rule is monotone)
     bracket = predict_factorisation(
@@ -365,13 +345,10 @@ class _StepOneRule:
     Attributes:
         memory: The bytes available (the smallest figure over the ranks).
         paper: The paper's mode: a factorisation wherever it fits.
-        floating_polish: A floating body that a factorised step 1 would polish from its
-            factors (:data:`FLOATING_FACTOR_FLOPS_LIMIT` applies).
     """
 
     memory: float
     paper: bool
-    floating_polish: bool
 
     def iterative_at(self, flops: float, need: float) -> tuple[bool, str]:
         """(whether step 1 is iterative, the rule that says so) at this cost.
@@ -386,17 +363,6 @@ class _StepOneRule:
         if self.paper:
             # the paper's Algorithm 2 factorises step 1 once: kept wherever it fits
             return False, "it fits: factorised as the paper's algorithm"
-        if self.floating_polish:
-            if flops > FLOATING_FACTOR_FLOPS_LIMIT:
-                return True, (
-                    f"> {FLOATING_FACTOR_FLOPS_LIMIT:.0e} flops, even for a floating body "
-                    "that would polish from the step-1 factors"
-                )
-            if flops > FACTOR_FLOPS_LIMIT:
-                return False, (
-                    f"≤ {FLOATING_FACTOR_FLOPS_LIMIT:.0e} flops: a floating body, whose "
-                    "polishing reads the step-1 factors"
-                )
         if flops > FACTOR_FLOPS_LIMIT:
             return True, f"> {FACTOR_FLOPS_LIMIT:.0e} flops, where multigrid is faster"
         return False, f"≤ {FACTOR_FLOPS_LIMIT:.0e} flops and it fits"
