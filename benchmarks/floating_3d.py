@@ -1,7 +1,8 @@
 """A body that the contact alone holds, on the multigrid path: polished by multigrid or not.
 
-Past the plan's factorisation limits (``FLOATING_FACTOR_FLOPS_LIMIT``,
-``INVERSE_MAX_CONTACT_NODES``) a floating body's step 1 is CG + GAMG. Unpolished, its
+Past the plan's factorisation limits (``FACTOR_FLOPS_LIMIT``, or
+``INVERSE_MAX_CONTACT_NODES`` for polishing from the factors) a floating body's step 1
+is CG + GAMG. Unpolished, its
 ADMM builds the contact zone a few nodes per iteration; the default polishes it by
 the active-set walk with multigrid solves (:mod:`admm_dolfinx.admm.polish_sparse`).
 For each mesh, in one run, one after the other:

@@ -67,6 +67,10 @@ POLISH_RTOL_FACTOR = 1e-3
 #: relative residual (SIGN_TOL where that is smaller).
 SIGN_FACTOR = 10.0
 
+#: A guess holds the floating motions where the smallest eigenvalue of their normal
+#: displacements' Gram matrix on 𝒜 exceeds this fraction of the largest on Γ_C.
+HOLD_TOL = 1e-10
+
 #: Primal-dual active-set corrections of one guess. Where the contact zone's edge
 #: moves by a node per round (a beam lifting off near a clamp) it needs more rounds
 #: than the dense polisher's 10; each costs a factorisation, and the time budget of
@@ -184,6 +188,8 @@ class SparsePolish:
         tolerance = max(SIGN_TOL, SIGN_FACTOR * self.solve_rtol) if self.iterative else SIGN_TOL
 
         def step(active):
+            if not self._holds(active):  # Â singular: no equality solution
+                return None, None
             nu, lam, u = self._equality_solution(active)
             self.rounds += 1
             lam_tol = tolerance * self.problem.global_norm(lam, np.inf)
@@ -205,6 +211,21 @@ class SparsePolish:
             return None
         p, lam, self.displacement = outcome
         return p, lam
+
+    def _holds(self, active: npt.NDArray[np.bool_]) -> bool:
+        """Whether the constraints of 𝒜 hold every floating motion; collective.
+
+        A floating body's Â is definite only where the normal displacements (N d_i)_j of
+        its free rigid motions d_i at the nodes of 𝒜 span them: otherwise (an empty
+        guess, the first iterates of a body with clearance everywhere; too few nodes
+        for several free motions) the guess has no equality solution and is skipped.
+        """
+        motion = self.problem.rigid_motions.normal_motion  # (floating, owned nodes)
+        if motion.shape[0] == 0:
+            return True
+        local = np.stack([motion[:, active] @ motion[:, active].T, motion @ motion.T])
+        gram, whole = self.comm.allreduce(local, op=MPI.SUM)
+        return bool(np.linalg.eigvalsh(gram)[0] > HOLD_TOL * np.linalg.eigvalsh(whole)[-1])
 
     def _key(self, active: npt.NDArray[np.bool_]) -> bytes:
         """A digest of the global active set, the same on every rank; collective."""

@@ -281,7 +281,11 @@ class ADMMSolver:
                 shared = schur_source or (
                     self.operator
                     if plan.step1 == "factorised"
-                    or (plan.step1 == "iterative" and problem.rigid_motions.floating)
+                    or (
+                        plan.step1 == "iterative"
+                        and plan.penalty == "local"  # λ_max's solves only, λ_min is local
+                        and problem.rigid_motions.floating
+                    )
                     else None
                 )
                 assert plan.penalty_tol is not None  # resolved whenever r* is computed
