@@ -109,8 +109,10 @@ def add_to_hierarchy(pc: PETSc.PC, fine: PETSc.Mat, delta: PETSc.Mat) -> bool:
     smoothers and the coarse solve are set up again on the new operators, as
     :meth:`CoarsePenalty.move` does for a change of r. The products' patterns lie
     within the coarse operators' (Δ's lies within the fine operator's, and PETSc's
-    products keep every structural entry); should PETSc refuse a sum on some rank
-    nonetheless, every rank learns it before the next collective step.
+    products keep every structural entry), so PETSc does not refuse a sum. Should it
+    refuse one nonetheless, the refusal is agreed among the ranks (and the caller sets
+    the preconditioner up afresh) where PETSc raises it on all of them alike; an error
+    raised on one rank inside the sum's parallel assembly would not reach the others.
 
     Args:
         pc: A ``PCGAMG`` (``PCMG``) set up on ``fine`` − ``delta``, whose operators
