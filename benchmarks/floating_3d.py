@@ -42,8 +42,8 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
 from mpi4py import MPI
+from polish_3d import relative_difference
 from tables import print_and_save, select
 
 from admm_dolfinx import ADMMSolver
@@ -93,14 +93,6 @@ def plain_solve(problem, r):
     finally:
         for obj in (operator, b, x):
             obj.destroy()
-
-
-def relative_difference(problem, u, v):
-    """‖u − v‖ / ‖v‖ over the owned dofs of all ranks."""
-    owned = problem.V.dofmap.index_map.size_local * problem.V.dofmap.index_map_bs
-    local = np.array([np.sum((u[:owned] - v[:owned]) ** 2), np.sum(v[:owned] ** 2)])
-    total = problem.comm.allreduce(local, op=MPI.SUM)
-    return float(np.sqrt(total[0] / total[1]))
 
 
 def main():
