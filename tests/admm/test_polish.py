@@ -371,6 +371,20 @@ def test_a_floating_body_on_the_multigrid_path_is_polished_by_multigrid(level):
     assert rel_diff(lam, _global(problem, exact.multiplier)) <= 1e-8
 
 
+def test_a_new_kkt_tol_reaches_the_multigrid_polish():
+    """update_settings(kkt_tol) ties the walk's solves to the new tolerance, so the
+    polished answer meets it (they were left at the first tolerance's accuracy)."""
+    problem = hertz_sphere(level=1).problem()
+    with ADMMSolver(problem, step1="iterative") as solver:
+        first = solver.polisher.solve_rtol
+        tighter = solver.settings.kkt_tol / 100
+        solver.update_settings(rtol=tighter, expert={"kkt_tol": tighter})
+        assert solver.polisher.solve_rtol == pytest.approx(first / 100)
+        result = solver.solve()
+    assert result.converged and result.polish.polished_at == 2
+    assert result.kkt.max() <= solver.settings.kkt_tol
+
+
 def test_a_guess_that_does_not_hold_a_floating_body_is_skipped():
     """An empty guess (the first iterates of a body with clearance everywhere) leaves a
     floating body's Â singular: the multigrid walk skips it instead of failing, on

@@ -157,9 +157,9 @@ def test_a_changed_active_set_adds_its_projected_change_to_the_hierarchy():
         for share in (0.5, 0.1, 0.0):  # growing guesses of the contact set
             active = lam > share * problem.global_norm(lam, np.inf)
             before = _galerkin_products()
-            nu_moved, lam_moved, _ = moved._equality_solution(active)
+            nu_moved, lam_moved, _ = moved._equality_solution(active, moved.solve_rtol)
             products = _galerkin_products() - before
-            nu_fresh, lam_fresh, _ = recomputed._equality_solution(active)
+            nu_fresh, lam_fresh, _ = recomputed._equality_solution(active, recomputed.solve_rtol)
             assert products == (1 if share == 0.5 else 0)  # the first set-up only
             levels = [p._ksp.getPC() for p in (moved, recomputed)]
             assert levels[0].getMGLevels() == levels[1].getMGLevels() >= 3

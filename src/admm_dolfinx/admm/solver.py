@@ -393,6 +393,8 @@ class ADMMSolver:
         )
         settings.check_same_on_every_rank(self.problem.comm)
         self.settings = settings
+        if isinstance(self.polisher, SparsePolish):  # its solves are tied to kkt_tol
+            self.polisher.set_kkt_tol(settings.kkt_tol)
 
     @property
     def ksp(self) -> PETSc.KSP:
