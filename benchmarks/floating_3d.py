@@ -13,6 +13,10 @@ For each mesh, in one run, one after the other:
 * ``default``: ``ADMMSolver(problem)``, the plan's own choice (below the limits a
   factorised step 1, polished from its factors), on the meshes up to
   ``--default-limit`` dofs;
+* ``factorised``: ``ADMMSolver(problem, step1="factorised")``, on the same meshes:
+  the factorised step 1, polished from its factors where ``INVERSE_MAX_CONTACT_NODES``
+  allows, which the default kept for floating bodies up to 10¹² operations before
+  the multigrid path polished;
 * ``plain``: one elastic solve of the same size: A + rNᵀMN (the body held along the
   normal on all of Γ_C by the penalty, at the multigrid run's r), CG + GAMG with the
   rigid body modes to ``ksp_rtol = 1e-8``, set-up included.
@@ -24,8 +28,11 @@ is past ``INVERSE_MAX_CONTACT_NODES``, so there the plan itself takes this path.
 
 Columns: wall seconds (the slowest rank's; assembly excluded, everything from the
 solver's construction to its answer included), CPU seconds (process time summed over
-the ranks), their ratio to the plain solve's, ADMM iterations, the walk's rounds and
-Krylov iterations, the largest relative KKT residual, ‖u − u_np‖/‖u_np‖ against the
+the ranks), their ratio to the plain solve's, where the wall time went (rank 0's
+``result.timings``, each in plain solves: r* with its λ_max and λ_min, the set-up of
+step 1's operator and multigrid, the walk, and the rest of the iterations with the
+final KKT check), ADMM iterations, the walk's rounds and Krylov iterations, the
+largest relative KKT residual, ‖u − u_np‖/‖u_np‖ against the
 unpolished answer, and the machine's 1-minute load average when the row started.
 
     python benchmarks/floating_3d.py            # both scenes, levels 2-4 (about 30 min)
@@ -103,7 +110,7 @@ def main():
         "--default-limit",
         type=float,
         default=1e5,
-        help="run the plan's own default on meshes up to this many dofs",
+        help="run the plan's default and the factorised path on meshes up to this many dofs",
     )
     parser.add_argument("--out", default="out_benchmarks")
     args = parser.parse_args()
@@ -122,6 +129,7 @@ def main():
         }
         if dofs <= args.default_limit:
             runs["default"] = measured(lambda p=problem: contact_solve(p))
+            runs["factorised"] = measured(lambda p=problem: contact_solve(p, step1="factorised"))
         r = runs["multigrid"][2][0].penalty
         plain = measured(lambda p=problem, r=r: plain_solve(p, r))
         reference = runs["no polish"][2][0]
@@ -137,6 +145,8 @@ def main():
         )
         for label, (wall, cpu, (result, plan)) in runs.items():
             polish = result.polish
+            t, walk = result.timings, polish.time if polish else 0.0
+            phases = (t.penalty, t.operator + t.factorization, walk, t.iterations - walk + t.kkt)
             same = label == "no polish"
             difference = relative_difference(problem, result.u.x.array, reference.u.x.array)
             rows.append(
@@ -151,6 +161,9 @@ def main():
                     "CPU [s]": f"{cpu:.3g}",
                     "wall / plain": f"{wall / plain[0]:.2f}",
                     "CPU / plain": f"{cpu / plain[1]:.2f}",
+                    "r* / set-up / walk / rest ÷ plain": " / ".join(
+                        f"{x / plain[0]:.1f}" for x in phases
+                    ),
                     "KKT": f"{result.kkt.max():.1e}",
                     "‖u − u_np‖/‖u_np‖": "–" if same else f"{difference:.1e}",
                 }

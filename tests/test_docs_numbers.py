@@ -418,11 +418,15 @@ def _floating_3d():
         num(row["walk Krylov its"]) / num(row["rounds"]) / num(by[(row["mesh"], "plain")]["its"])
         for row in polished
     ]
-    versus_default = [
+    versus_factorised = [
         num(by[(f"{scene} level 3", "multigrid")]["wall [s]"])
-        / num(by[(f"{scene} level 3", "default")]["wall [s]"])
+        / num(by[(f"{scene} level 3", "factorised")]["wall [s]"])
         for scene in ("hertz", "wide")
     ]
+    assert all(
+        by[(f"{scene} level 3", "default")]["plan"] == "iterative, polish sparse"
+        for scene in ("hertz", "wide")
+    )
     return [
         f"levels 2–4 (level 4: {int(level4[0]['dofs']):,} and {int(level4[1]['dofs']):,} "
         f"dofs, {level4[0]['m']} and {level4[1]['m']} contact nodes; there the plan takes the "
@@ -436,10 +440,18 @@ def _floating_3d():
         f"{span(nums(polished, 'wall / plain'), lambda x: f'{x:.1f}')}× a plain CG + GAMG "
         "solve of the same size: the walk takes "
         f"{span(nums(polished, 'rounds'), lambda x: f'{x:.0f}')} rounds, each "
-        f"{span(per_round, lambda x: f'{x:.1f}')} times a plain solve's Krylov iterations; "
-        f"* on level 3 it took {versus_default[0]:.2f} "
-        f"(Hertz) and {versus_default[1]:.2f} (wide) of the time of the factorised default "
-        "of the same run",
+        f"{span(per_round, lambda x: f'{x:.1f}')} times a plain solve's Krylov iterations"
+        "; * where the time goes, in plain solves (r* / set-up / walk / rest of the "
+        "iterations): on the Hertz ball "
+        + ", ".join(
+            f"{by[(f'hertz level {k}', 'multigrid')]['r* / set-up / walk / rest ÷ plain']} "
+            f"on level {k}"
+            for k in (2, 3, 4)
+        )
+        + "; "
+        f"* on level 3 it took {versus_factorised[0]:.2f} (Hertz) and "
+        f"{versus_factorised[1]:.2f} (wide) of the time of the factorised path "
+        '(`step1="factorised"`, polished from its factors) of the same run',
     ]
 
 
@@ -660,13 +672,16 @@ QUOTES: list[tuple[str, str, Callable[[], list[str]]]] = [
         "acceleration.md",
         "levels 2–4 (level 4: 490,170 and 496,527 dofs, 6074 and 6565 contact nodes; there "
         "the plan takes the path by itself), one solve after the other in one run: * "
-        "polished, every solve takes 2 iterations, against 129–240 unpolished on the Hertz "
+        "polished, every solve takes 2 iterations, against 129–238 unpolished on the Hertz "
         "ball and 41–43 on the wide one, all within the KKT tolerance; * on the Hertz ball "
-        "the polished solve takes 0.41–0.76 of the unpolished time, but on the wide ball, "
-        "whose ADMM alone is quick, 1.28–1.43 of it; * either way it costs 8.8–14.2× a "
-        "plain CG + GAMG solve of the same size: the walk takes 10–15 rounds, each 1.5–1.7 "
-        "times a plain solve's Krylov iterations; * on level 3 it took 0.60 (Hertz) and "
-        "0.48 (wide) of the time of the factorised default of the same run",
+        "the polished solve takes 0.25–0.63 of the unpolished time, but on the wide ball, "
+        "whose ADMM alone is quick, 0.93–1.12 of it; * either way it costs 7.2–13.1× a "
+        "plain CG + GAMG solve of the same size: the walk takes 11–16 rounds, each 0.8–1.4 "
+        "times a plain solve's Krylov iterations; * where the time goes, in plain solves "
+        "(r* / set-up / walk / rest of the iterations): on the Hertz ball 2.6 / 0.3 / 8.6 / "
+        "0.2 on level 2, 2.5 / 0.3 / 7.8 / 0.2 on level 3, 2.3 / 0.4 / 10.3 / 0.1 on level "
+        "4; * on level 3 it took 0.52 (Hertz) and 0.43 (wide) of the time of the factorised "
+        'path (`step1="factorised"`, polished from its factors) of the same run',
         _floating_3d,
     ),
     (
