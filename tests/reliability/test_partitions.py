@@ -101,6 +101,28 @@ def test_floating_body_matches_serial(gdim, cell, how):
 
 
 @pytest.mark.parametrize("gdim,cell,how", AWKWARD)
+@pytest.mark.mpi4
+def test_floating_body_on_the_multigrid_path_matches_serial(gdim, cell, how):
+    """Held by the contact alone, step 1 by multigrid: the walk's multigrid solves (its
+    hierarchy kept across the rounds) polish on every partition, a rank without
+    contact node or without cells included."""
+    problem = pressed_box(COMM, gdim, cell, how, obstacle=_ball(gdim), load=0.02)
+    _check_partition(problem, how)
+    with ADMMSolver(problem, step1="iterative") as solver:
+        assert solver.plan.polish == "sparse"
+        result = solver.solve()
+    assert result.converged and result.polish.polished_at == result.iterations
+    assert result.polish.krylov_iterations > 0
+    kkt = compute_kkt_residuals(problem, result.u.x.petsc_vec, result.multiplier)
+    assert kkt.max() <= result.settings.kkt_tol
+    # the dense polish's exact answer, serially: the walk solves each set to 1e-3 kkt_tol
+    u_serial, serial = _serial(gdim, cell, how, load=0.02)
+    assert _rel(gathered(problem, result.u), u_serial) <= 1e-8
+    assert result.num_active == serial.num_active > 0
+    problem.destroy()
+
+
+@pytest.mark.parametrize("gdim,cell,how", AWKWARD)
 @pytest.mark.parametrize(
     "options",
     [
