@@ -38,7 +38,7 @@ demo: venv
 test: lint test-serial test-mpi reproduce-quick test-demos test-benchmarks docs
 
 test-serial: venv
-	$(PY) $(PYTEST)
+	$(PY) $(PYTEST) --durations=20
 
 # -n 2: everything; -n 3 and -n 4 (oversubscribed on two cores): the tests marked
 # mpi3 and mpi4 (the parallel comparisons and the partition matrix; pyproject.toml).
