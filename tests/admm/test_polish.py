@@ -371,6 +371,34 @@ def test_a_floating_body_on_the_multigrid_path_is_polished_by_multigrid(level):
     assert rel_diff(lam, _global(problem, exact.multiplier)) <= 1e-8
 
 
+def test_the_multigrid_walk_remembers_no_coarse_step(monkeypatch):
+    """A step read from a coarse solve is not the set's exact step: the walk forgets it,
+    so that a later attempt computes it again instead of following it. With every
+    moving round coarse, the steps remembered after the solve are tight ones only."""
+    import admm_dolfinx.admm.polish_sparse as sparse_module
+
+    monkeypatch.setattr(sparse_module, "COARSE_MOVES", 0.0)
+    problem = hertz_sphere(level=1).problem()
+    with ADMMSolver(problem, step1="iterative") as solver:
+        polisher = solver.polisher
+        solved: list[tuple[np.ndarray, float]] = []
+        equality_solution = polisher._equality_solution
+
+        def recording(active, rtol):
+            solved.append((active.copy(), rtol))
+            return equality_solution(active, rtol)
+
+        monkeypatch.setattr(polisher, "_equality_solution", recording)
+        result = solver.solve()
+        assert result.converged and result.polish.polished_at == 2
+        coarse = {polisher._key(a) for a, rtol in solved if rtol == sparse_module.COARSE_RTOL}
+        tight = {polisher._key(a) for a, rtol in solved if rtol == polisher.solve_rtol}
+        remembered = set(polisher._walk._next)
+        assert coarse - tight  # some sets were stepped from coarsely only
+        assert not remembered & (coarse - tight)
+        assert remembered  # the tight steps (the answer's) are kept
+
+
 def test_a_new_kkt_tol_reaches_the_multigrid_polish():
     """update_settings(kkt_tol) ties the walk's solves to the new tolerance, so the
     polished answer meets it (they were left at the first tolerance's accuracy)."""

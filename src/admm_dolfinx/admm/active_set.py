@@ -16,7 +16,10 @@ computes each step of it once per solve:
   become a limit per solve;
 * a set whose walk ended (at a solution already proposed, at a singular system, or
   at a step that raised), or a walk that returns to a set it has visited (a cycle),
-  gives nothing.
+  gives nothing;
+* a step computed from an inexact solve (the multigrid walk's coarse rounds) is a
+  provisional one: the polisher forgets it after the walk (:meth:`ActiveSetWalk.forget`),
+  so that no later walk follows it instead of the exact step.
 
 ``python benchmarks/scale_2d.py`` shows the ADMM iteration counts this keeps flat as
 the 2D mesh is refined.
@@ -56,6 +59,14 @@ class ActiveSetWalk(Generic[T]):
     def clear(self) -> None:
         """Forget every step (a new load, gap or penalty)."""
         self._next.clear()
+
+    def forget(self, sets: list[Mask]) -> None:
+        """Forget the steps from these sets; collective where the key is.
+
+        For steps that an inexact solve computed, which a later walk must compute again.
+        """
+        for active in sets:
+            self._next.pop(self._key(active), None)
 
     def __len__(self) -> int:
         """The number of steps computed since :meth:`clear`."""

@@ -205,6 +205,7 @@ class SparsePolish:
         # the rounds of an iterative polish start coarse (COARSE_RTOL) while the set
         # moves a lot; a set is returned only from a solve to solve_rtol
         coarse = self.iterative and COARSE_RTOL > self.solve_rtol
+        provisional: list[npt.NDArray[np.bool_]] = []  # the sets stepped from coarsely
 
         def moves(active, rtol):
             """(N u, λ, u) of 𝒜 solved to rtol, the nodes that leave and join, and their count."""
@@ -231,6 +232,8 @@ class SparsePolish:
                 state, leave, join, changes = moves(active, COARSE_RTOL)
                 size = self.comm.allreduce(int(active.sum()), op=MPI.SUM)
                 coarse = changes > COARSE_MOVES * size
+                if coarse:
+                    provisional.append(active)
             if not coarse:  # also the exact solve of a set the coarse round kept
                 state, leave, join, changes = moves(active, self.solve_rtol)
             if changes == 0:
@@ -239,6 +242,8 @@ class SparsePolish:
             return None, (active & ~leave) | join
 
         outcome, rounds = self._walk.walk(active, step, self.max_rounds)
+        # a coarse step is not the set's exact step: no later walk follows it
+        self._walk.forget(provisional)
         self.attempts += int(rounds > 0)
         self.time += time.perf_counter() - t0
         if outcome is None:
