@@ -88,6 +88,10 @@ START_CG_STEPS = 2
 #: deflated. ``tests/admm/test_iterative_step1.py`` compares λ_max and r* with those of
 #: the factorisation.
 ITERATIVE_SOLVE_FACTOR = 1e-3
+#: The tightest relative residual of those solves: a tighter one (a very small
+#: ``penalty_tol``) would ask CG for digits that round-off takes, and stop it at its
+#: iteration limit.
+SOLVE_RTOL_FLOOR = 1e-12
 
 
 class NeedsFactorisation(Exception):
@@ -159,8 +163,8 @@ def lambda_max_factorised(
     (a :class:`~admm_dolfinx.operators.penalised.PenalisedOperator`), one substitution
     per application; or, where that operator is iterative (step 1's multigrid, for a
     body too large to factorise), one Krylov solve to :data:`ITERATIVE_SOLVE_FACTOR`
-    times ``tol`` per application, its tolerance restored afterwards. The eigensolver
-    reads options under ``{prefix}lmax_``.
+    times ``tol`` (at least :data:`SOLVE_RTOL_FLOOR`) per application, its tolerance
+    restored afterwards. The eigensolver reads options under ``{prefix}lmax_``.
 
     Raises:
         RuntimeError: If an iterative solve stopped at its iteration limit.
@@ -170,7 +174,6 @@ def lambda_max_factorised(
     iterative = hasattr(operator, "set_tolerance")
     if iterative:
         rtol_before, unconverged_before = operator.rtol, operator.unconverged
-        operator.set_tolerance(ITERATIVE_SOLVE_FACTOR * tol)
 
     def top(r_a, rigid):
         operator.set_penalty(r_a)
@@ -190,12 +193,14 @@ def lambda_max_factorised(
             mat.destroy()
 
     # the rigid directions M^½ N d of the floating motions, as distributed m-vectors
-    rigid = []
-    for motion in space.problem.rigid_motions.normal_motion:
-        vec = space.create_vec()
-        vec.array[:] = space.sqrt_mass * motion
-        rigid.append(vec)
+    rigid: list[PETSc.Vec] = []
     try:
+        for motion in space.problem.rigid_motions.normal_motion:
+            vec = space.create_vec()
+            vec.array[:] = space.sqrt_mass * motion
+            rigid.append(vec)
+        if iterative:
+            operator.set_tolerance(max(SOLVE_RTOL_FLOOR, ITERATIVE_SOLVE_FACTOR * tol))
         lambda_max, info = _lambda_max_loop(lambda_min, top, rigid)
     finally:
         for vec in rigid:
@@ -205,8 +210,9 @@ def lambda_max_factorised(
     if iterative and operator.unconverged > unconverged_before:  # the same on every rank
         raise RuntimeError(
             f"λ_max of r*: {operator.unconverged - unconverged_before} Krylov solve(s) with "
-            "A + r_a NᵀMN stopped at their iteration limit. Check the step-1 options "
-            "(ksp_max_it), or give the penalty explicitly."
+            "A + r_a NᵀMN stopped at their iteration limit. Loosen the eigenvalue "
+            "tolerance (expert penalty_tol), check the step-1 options (ksp_max_it), or "
+            "give the penalty explicitly."
         )
     info.update(solves_max=operator.solves - solves_before, lambda_max_method="factorised")
     return lambda_max, info
