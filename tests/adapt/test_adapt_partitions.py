@@ -110,3 +110,45 @@ def test_a_surface_map_of_the_wrong_shape_is_named():
             scene.contact_marker,
             lambda x: x[:, :1],
         )
+
+
+@pytest.mark.parametrize("gdim", [2, 3])
+@pytest.mark.parametrize("degree", [1, 2])
+def test_the_transfer_through_parent_cells_equals_the_located_one(gdim, degree):
+    """A coarse function evaluated in each fine cell's parent equals the non-matching
+    interpolation that locates the fine points (independent: a search in the coarse
+    mesh), to round-off, for vector and scalar spaces and every partition."""
+    from dolfinx import fem, mesh
+
+    from admm_dolfinx.adapt.refinement import (
+        _interpolate_by_search,
+        _interpolate_in_parents,
+        refine_with_parents,
+    )
+
+    comm = MPI.COMM_WORLD
+    if gdim == 2:
+        msh = mesh.create_unit_square(comm, 6, 5)
+    else:
+        msh = mesh.create_unit_cube(comm, 4, 3, 3)
+    msh.topology.create_entities(1)
+    msh.topology.create_connectivity(gdim - 1, gdim)
+    tags = mesh.meshtags(msh, gdim - 1, np.zeros(0, np.int32), np.zeros(0, np.int32))
+    edges = np.arange(0, msh.topology.index_map(1).size_local, 3, dtype=np.int32)
+    fine, _, parents = refine_with_parents(msh, tags, edges, 1)
+    for shape in ((gdim,), ()):
+        coarse_space = fem.functionspace(msh, ("Lagrange", degree, shape))
+        fine_space = fem.functionspace(fine, ("Lagrange", degree, shape))
+        source = fem.Function(coarse_space)
+        components = [lambda x, i=i: np.sin(3 * x[0] + i) * np.exp(x[1]) for i in range(gdim)]
+        if shape:
+            source.interpolate(lambda x, c=components: np.vstack([f(x) for f in c]))
+        else:
+            source.interpolate(components[0])
+        by_parent, by_search = fem.Function(fine_space), fem.Function(fine_space)
+        _interpolate_in_parents(by_parent, source, parents)
+        _interpolate_by_search(by_search, source)
+        difference = np.abs(by_parent.x.array - by_search.x.array).max(initial=0.0)
+        assert comm.allreduce(difference, op=MPI.MAX) <= 1e-12
+        size = np.abs(by_search.x.array).max(initial=0.0)
+        assert comm.allreduce(size, op=MPI.MAX) > 0.1  # not two zero functions

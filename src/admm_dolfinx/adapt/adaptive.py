@@ -44,7 +44,7 @@ from admm_dolfinx.adapt.quantities import QUANTITIES, level_estimate, quantity_v
 from admm_dolfinx.adapt.recovery import NEIGHBOURS
 from admm_dolfinx.adapt.refinement import (
     check_refinable,
-    refine_contact_mesh,
+    refine_with_parents,
     transfer_solution,
 )
 from admm_dolfinx.adapt.surface import Surface
@@ -276,11 +276,15 @@ def _adapt(
     resolved: list[bool] = []
     warm: WarmStart | None = None
     previous: tuple[ContactProblem, ADMMResult] | None = None
+    coarse: Mesh | None = None  # the mesh the last refinement split
+    parents: np.ndarray | None = None  # in coarse, of each owned cell of msh
     for level in range(max_levels + 1):
         cpu0, wall0 = _cpu(comm), time.perf_counter()
         problem = _build(build, msh, facet_tags)
         if previous is not None:
-            warm = transfer_solution(previous[1], problem)
+            # the parents hold where build() made the problem on the mesh it was given
+            related = problem.mesh is msh and previous[0].mesh is coarse
+            warm = transfer_solution(previous[1], problem, parents if related else None)
             previous[0].destroy()  # the coarser level is done with
         with ADMMSolver(problem, **options) as solver:
             result = solver.solve(warm_start=warm)
@@ -324,7 +328,8 @@ def _adapt(
             marked=count_edges(msh, marked),
         )
         if not done and level < max_levels:
-            msh, facet_tags = refine_contact_mesh(
+            coarse = msh
+            msh, facet_tags, parents = refine_with_parents(
                 msh, facet_tags, marked, problem.contact_marker, surface
             )
         cpu = float(comm.allreduce(_cpu(comm) - cpu0, op=MPI.SUM))

@@ -57,6 +57,21 @@ def refine_contact_mesh(
 ) -> tuple[mesh.Mesh, mesh.MeshTags]:
     """Split ``edges``, carry the facet tags, place Γ_C's vertices on ``surface``; collective.
 
+    The same as :func:`refine_with_parents` without the parent cells.
+    """
+    fine, tags, _ = refine_with_parents(msh, facet_tags, edges, contact_marker, surface)
+    return fine, tags
+
+
+def refine_with_parents(
+    msh: mesh.Mesh,
+    facet_tags: mesh.MeshTags,
+    edges: npt.NDArray[np.int32],
+    contact_marker: Marker,
+    surface: Surface | None = None,
+) -> tuple[mesh.Mesh, mesh.MeshTags, npt.NDArray[np.int32]]:
+    """Split ``edges``, carry the facet tags, place Γ_C's vertices on ``surface``; collective.
+
     Args:
         msh: The mesh.
         facet_tags: Its facet tags.
@@ -66,7 +81,8 @@ def refine_contact_mesh(
             the nearest points on it; None keeps the mesh's facets as the surface.
 
     Returns:
-        The refined mesh and its facet tags.
+        The refined mesh, its facet tags, and the parent of each of its owned cells (a
+        local cell of ``msh``: refinement keeps a cell's children on its process).
     """
     fdim = msh.topology.dim - 1
     msh.topology.create_entities(1)
@@ -77,10 +93,11 @@ def refine_contact_mesh(
     fine.topology.create_entities(fdim)
     # what a user's build() may need, as on a mesh read from gmsh (locate_dofs_topological)
     fine.topology.create_connectivity(fdim, fine.topology.dim)
-    tags = _transfer_facet_tags(facet_tags, msh, fine, parent_cell, parent_facet)
+    order = _refined_order(fine, parent_cell)
+    tags = _transfer_facet_tags(facet_tags, msh, fine, order, parent_cell, parent_facet)
     if surface is not None:
         _place_on_surface(fine, marked_facets(tags, contact_marker), surface)
-    return fine, tags
+    return fine, tags, np.asarray(parent_cell, dtype=np.int32)[order]
 
 
 def _place_on_surface(fine: mesh.Mesh, facets: npt.NDArray[np.int32], surface: Surface) -> None:
@@ -98,10 +115,30 @@ def _place_on_surface(fine: mesh.Mesh, facets: npt.NDArray[np.int32], surface: S
     fine.geometry.x[nodes, :gdim] = moved
 
 
+def _refined_order(fine: mesh.Mesh, parent_cell: npt.NDArray[np.int32]) -> npt.NDArray[np.int64]:
+    """For each owned cell of ``fine``, its index in the refinement's parent maps.
+
+    The parent maps are indexed by the refined cells' input order, which the new mesh's
+    topology reorders: ``original_cell_index`` undoes that (global input indices in
+    parallel: each rank's refined cells come in rank order).
+    """
+    tdim = fine.topology.dim
+    count = int(np.size(parent_cell))
+    start = fine.comm.exscan(count) if fine.comm.size > 1 else 0
+    owned = fine.topology.index_map(tdim).size_local
+    order = np.asarray(fine.topology.original_cell_index, dtype=np.int64)[:owned] - (start or 0)
+    if order.size and (order.min() < 0 or order.max() >= count):
+        raise RuntimeError(  # pragma: no cover - a refinement that moved cells
+            "internal: the refined mesh's cells are not those refined on this process"
+        )
+    return order
+
+
 def _transfer_facet_tags(
     tags: mesh.MeshTags,
     coarse: mesh.Mesh,
     fine: mesh.Mesh,
+    order: npt.NDArray[np.int64],
     parent_cell: npt.NDArray[np.int32],
     parent_facet: npt.NDArray[np.int8],
 ) -> mesh.MeshTags:
@@ -121,17 +158,6 @@ def _transfer_facet_tags(
     per_cell = tdim + 1
     coarse_c2f = coarse.topology.connectivity(tdim, fdim).array.reshape(-1, per_cell)
     fine_c2f = fine.topology.connectivity(tdim, fdim).array.reshape(-1, per_cell)
-    # the parent maps are indexed by the refined cells' input order, which the new
-    # mesh's topology reorders: original_cell_index undoes that
-    # (global input indices in parallel: each rank's refined cells come in rank order)
-    count = int(np.size(parent_cell))
-    start = fine.comm.exscan(count) if fine.comm.size > 1 else 0
-    owned = fine.topology.index_map(tdim).size_local
-    order = np.asarray(fine.topology.original_cell_index, dtype=np.int64)[:owned] - (start or 0)
-    if order.size and (order.min() < 0 or order.max() >= count):
-        raise RuntimeError(  # pragma: no cover - a refinement that moved cells
-            "internal: the refined mesh's cells are not those refined on this process"
-        )
     n = min(order.size, fine_c2f.shape[0])
     fine_c2f, order = fine_c2f[:n], order[:n]
     local = np.asarray(parent_facet, dtype=np.int64).reshape(-1, per_cell)[order]
@@ -158,34 +184,78 @@ def _smallest_cell(msh: mesh.Mesh) -> float:
     return float(msh.comm.allreduce(local, op=MPI.MIN))
 
 
-def transfer_solution(result: ADMMResult, problem: ContactProblem) -> WarmStart:
+def transfer_solution(
+    result: ADMMResult,
+    problem: ContactProblem,
+    parents: npt.NDArray[np.int32] | None = None,
+) -> WarmStart:
     """A coarse solution interpolated onto a finer problem, to start its solve; collective.
 
-    Points of the fine mesh just outside the coarse one (vertices moved onto a convex
-    true surface) take the values of their nearest coarse cell.
+    With ``parents`` (from :func:`refine_with_parents`, the fine mesh being a refinement
+    of the coarse solution's), each fine cell's interpolation points are evaluated in
+    its parent cell: no search. Without, or where the meshes are not those, the points
+    are located in the coarse mesh (``dolfinx.fem.create_interpolation_data``). Either
+    way, points of the fine mesh just outside the coarse one (vertices moved onto a
+    convex true surface) take the values of the coarse cell they came from (its
+    polynomial extended), or of their nearest coarse cell.
 
     Args:
         result: The coarse solution.
         problem: The problem on the refined mesh.
+        parents: The coarse parent (local cell) of each owned cell of the fine mesh.
 
     Returns:
         u and λ on the fine problem.
     """
-    fine = problem.mesh
+    u = fem.Function(problem.V)
+    pressure = fem.Function(problem.contact.Q)
+    coarse = result.u.function_space.mesh
+    tdim = coarse.topology.dim
+    owned = problem.mesh.topology.index_map(tdim).size_local
+    related = problem.mesh.comm.allreduce(
+        parents is not None and parents.size == owned, op=MPI.LAND
+    )
+    if related:
+        assert parents is not None
+        for target, source in ((u, result.u), (pressure, result.pressure)):
+            _interpolate_in_parents(target, source, parents)
+    else:
+        _interpolate_by_search(u, result.u)
+        _interpolate_by_search(pressure, result.pressure)
+    multiplier = np.maximum(pressure.x.array[problem.contact.dofs], 0.0)
+    return WarmStart(u, multiplier)
+
+
+def _interpolate_in_parents(
+    target: fem.Function, source: fem.Function, parents: npt.NDArray[np.int32]
+) -> None:
+    """``source`` at the interpolation points of each owned cell, in its parent; collective.
+
+    The owned cells of ``target``'s mesh are interpolated, its ghosts then take the
+    values of their owners.
+    """
+    cells = np.arange(parents.size, dtype=np.int32)
+
+    def values(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        per_cell = x.shape[1] // max(cells.size, 1)
+        at = source.eval(x.T, np.repeat(parents, per_cell).astype(np.int32))
+        return np.ascontiguousarray(at.T)
+
+    target.interpolate(values, cells0=cells)
+    target.x.scatter_forward()
+
+
+def _interpolate_by_search(target: fem.Function, source: fem.Function) -> None:
+    """``source`` interpolated onto ``target``'s mesh by locating its points; collective."""
+    fine = target.function_space.mesh
     tdim = fine.topology.dim
     cell_map = fine.topology.index_map(tdim)
     cells = np.arange(cell_map.size_local + cell_map.num_ghosts, dtype=np.int32)
     # vertices moved onto a convex true surface lie outside the coarse mesh, by the
     # sagitta of its facets (h²/8R): a padding of a fraction of the smallest coarse
     # cell finds them their nearest coarse cell instead of leaving them at zero
-    padding = PADDING_SHARE * _smallest_cell(result.u.function_space.mesh)
-    u = fem.Function(problem.V)
-    data = fem.create_interpolation_data(problem.V, result.u.function_space, cells, padding=padding)
-    u.interpolate_nonmatching(result.u, cells, data)
-    pressure = fem.Function(problem.contact.Q)
+    padding = PADDING_SHARE * _smallest_cell(source.function_space.mesh)
     data = fem.create_interpolation_data(
-        problem.contact.Q, result.pressure.function_space, cells, padding=padding
+        target.function_space, source.function_space, cells, padding=padding
     )
-    pressure.interpolate_nonmatching(result.pressure, cells, data)
-    multiplier = np.maximum(pressure.x.array[problem.contact.dofs], 0.0)
-    return WarmStart(u, multiplier)
+    target.interpolate_nonmatching(source, cells, data)
