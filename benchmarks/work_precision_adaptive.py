@@ -117,7 +117,7 @@ def uniform(comm, body, levels):
         rows.append(_row(body, "uniform", level, scene, problem, result, _cpu(comm) - cpu0))
         problem.destroy()
         if level + 1 < levels:  # the refinement is not counted: it is cheap and done once
-            msh, tags = refine_contact_mesh(
+            msh, tags, _ = refine_contact_mesh(
                 msh, tags, all_local_edges(msh), scene.contact_marker, scene.surface
             )
     return rows

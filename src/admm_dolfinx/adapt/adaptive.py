@@ -44,7 +44,7 @@ from admm_dolfinx.adapt.quantities import QUANTITIES, level_estimate, quantity_v
 from admm_dolfinx.adapt.recovery import NEIGHBOURS
 from admm_dolfinx.adapt.refinement import (
     check_refinable,
-    refine_with_parents,
+    refine_contact_mesh,
     transfer_solution,
 )
 from admm_dolfinx.adapt.surface import Surface
@@ -329,7 +329,7 @@ def _adapt(
         )
         if not done and level < max_levels:
             coarse = msh
-            msh, facet_tags, parents = refine_with_parents(
+            msh, facet_tags, parents = refine_contact_mesh(
                 msh, facet_tags, marked, problem.contact_marker, surface
             )
         cpu = float(comm.allreduce(_cpu(comm) - cpu0, op=MPI.SUM))

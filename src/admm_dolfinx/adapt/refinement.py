@@ -54,21 +54,6 @@ def refine_contact_mesh(
     edges: npt.NDArray[np.int32],
     contact_marker: Marker,
     surface: Surface | None = None,
-) -> tuple[mesh.Mesh, mesh.MeshTags]:
-    """Split ``edges``, carry the facet tags, place Γ_C's vertices on ``surface``; collective.
-
-    The same as :func:`refine_with_parents` without the parent cells.
-    """
-    fine, tags, _ = refine_with_parents(msh, facet_tags, edges, contact_marker, surface)
-    return fine, tags
-
-
-def refine_with_parents(
-    msh: mesh.Mesh,
-    facet_tags: mesh.MeshTags,
-    edges: npt.NDArray[np.int32],
-    contact_marker: Marker,
-    surface: Surface | None = None,
 ) -> tuple[mesh.Mesh, mesh.MeshTags, npt.NDArray[np.int32]]:
     """Split ``edges``, carry the facet tags, place Γ_C's vertices on ``surface``; collective.
 
@@ -191,7 +176,7 @@ def transfer_solution(
 ) -> WarmStart:
     """A coarse solution interpolated onto a finer problem, to start its solve; collective.
 
-    With ``parents`` (from :func:`refine_with_parents`, the fine mesh being a refinement
+    With ``parents`` (from :func:`refine_contact_mesh`, the fine mesh being a refinement
     of the coarse solution's), each fine cell's interpolation points are evaluated in
     its parent cell: no search. Without, or where the meshes are not those, the points
     are located in the coarse mesh (``dolfinx.fem.create_interpolation_data``). Either
@@ -209,9 +194,7 @@ def transfer_solution(
     """
     u = fem.Function(problem.V)
     pressure = fem.Function(problem.contact.Q)
-    coarse = result.u.function_space.mesh
-    tdim = coarse.topology.dim
-    owned = problem.mesh.topology.index_map(tdim).size_local
+    owned = problem.mesh.topology.index_map(problem.mesh.topology.dim).size_local
     related = problem.mesh.comm.allreduce(
         parents is not None and parents.size == owned, op=MPI.LAND
     )
