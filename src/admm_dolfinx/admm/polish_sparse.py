@@ -151,8 +151,6 @@ class SparsePolish:
     def set_kkt_tol(self, kkt_tol: float) -> None:
         """Solve Â (iteratively) to :data:`POLISH_RTOL_FACTOR` times a new KKT tolerance."""
         self.solve_rtol = max(TAU_FLOOR, POLISH_RTOL_FACTOR * kkt_tol)
-        if self.iterative:
-            self._options["ksp_rtol"] = self.solve_rtol
 
     def set_penalty(self, r: float) -> None:
         """Nothing depends on r (the equality-constrained problem does not)."""

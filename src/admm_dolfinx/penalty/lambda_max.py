@@ -41,6 +41,7 @@ from admm_dolfinx.linalg.petsc import (
     prepare_eigensolve,
     top_eigenpair,
 )
+from admm_dolfinx.operators.penalised import IterativeOperator
 
 __all__ = [
     "BLOCK_SIZE",
@@ -171,7 +172,7 @@ def lambda_max_factorised(
     """
     solves_before = operator.solves
     compliance = ComplianceOperator(space, operator)
-    iterative = hasattr(operator, "set_tolerance")
+    iterative = isinstance(operator, IterativeOperator)
     if iterative:
         rtol_before, unconverged_before = operator.rtol, operator.unconverged
 
