@@ -88,7 +88,9 @@ def contact_solve(problem, **settings):
 
 def plain_solve(problem, r):
     """Krylov iterations of one CG + GAMG solve of A + rNᵀMN, set-up included."""
-    operator = IterativeOperator(problem, "floating_plain_", iterative_options(None))
+    # PETSc's default stopping test (preconditioned residual), as every page's plain solve
+    options = {**iterative_options(None), "ksp_norm_type": "preconditioned"}
+    operator = IterativeOperator(problem, "floating_plain_", options)
     b, x = problem.create_vector(), problem.create_vector()
     try:
         operator.set_penalty(r)

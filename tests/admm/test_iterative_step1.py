@@ -41,6 +41,39 @@ def test_iterative_step1_gives_the_factorised_answer(scene):
     assert "step 1 (iterative)" in result.summary()
 
 
+def test_each_step1_solve_meets_its_tolerance_on_the_true_residual():
+    """CG stops on the unpreconditioned residual (CG_RESIDUAL_NORM): after every step-1
+    solve the residual recomputed from the matrix, ‖b − (A + rK)x‖, is at most the
+    tolerance the inexact rule set times ‖b‖; and the test costs no multigrid cycle
+    beyond CG's own (one per iteration), where PETSc's default test on the
+    preconditioned residual spends one more per warm-started solve on ‖Bb‖."""
+    problem = example3(level=1).problem()
+    with ADMMSolver(problem, step1="iterative") as solver:
+        operator = solver.operator
+        assert solver.ksp.getNormType() == PETSc.KSP.NormType.UNPRECONDITIONED
+        checked = []
+        solve = operator.solve
+        PETSc.Log.begin()
+        stage = PETSc.Log.Stage("test_step1_solves")
+
+        def checking_solve(b, x):
+            stage.push()
+            solve(b, x)
+            stage.pop()
+            residual = b.duplicate()
+            operator.matrix.mult(x, residual)
+            residual.aypx(-1.0, b)
+            checked.append(residual.norm() / b.norm() / operator.rtol)
+            residual.destroy()
+
+        operator.solve = checking_solve
+        result = solver.solve()
+        cycles = PETSc.Log.Event("PCApply").getPerfInfo(stage)["count"]
+    assert result.converged and len(checked) == result.iterations >= 2
+    assert max(checked) <= 1.0 + 1e-8
+    assert cycles <= result.step1.krylov_iterations + result.step1.solves
+
+
 def test_the_multigrid_sees_the_rigid_body_modes_and_is_set_up_once_per_r():
     """The step-1 matrix carries the near null space (a duplicate() of A would drop it);
     a second solve at the same r (a load step) sets up no new multigrid."""

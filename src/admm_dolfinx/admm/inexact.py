@@ -9,10 +9,11 @@ So the relative residual asked of the step-1 Krylov solve of iteration k is
     τ_k = max(τ_floor, min(τ_0 / k^q, σ r_{k−1})),
 
 with r_{k−1} the previous scaled fixed-point residual (the quantity the outer iteration
-is driving to zero): σ r_{k−1} keeps the inner error a fixed factor below what the
-outer iteration still has to gain, and τ_0 / k^q (q > 1) makes the sequence summable
-whatever the outer rate; τ_floor (:data:`TAU_FLOOR`) is where CG's relative residual
-meets round-off.
+is driving to zero) and τ_k a bound on CG's relative residual ‖b − Ax‖ / ‖b‖ (the
+unpreconditioned one, :data:`~admm_dolfinx.linalg.petsc.CG_RESIDUAL_NORM`): σ r_{k−1}
+keeps the inner error a fixed factor below what the outer iteration still has to gain,
+and τ_0 / k^q (q > 1) makes the sequence summable whatever the outer rate; τ_floor
+(:data:`TAU_FLOOR`) is where CG's relative residual meets round-off.
 
 The factor σ is what one outer iteration can absorb, so it follows the outer rate
 (the plan chooses it, :func:`~admm_dolfinx.admm.plan.make_plan`). A body held by its
@@ -42,9 +43,9 @@ __all__ = ["SIGMA_FLOATING", "SIGMA_HELD", "TAU_0", "TAU_FLOOR", "InexactRule"]
 TAU_0 = 1e-2
 #: The inner tolerance relative to the previous outer residual, for a body held by
 #: its Dirichlet conditions (the outer iteration contracts fast)...
-SIGMA_HELD = 1e-2
+SIGMA_HELD = 3e-3
 #: ...and for one that the contact alone holds (it creeps).
-SIGMA_FLOATING = 1e-3
+SIGMA_FLOATING = 3e-4
 #: The summable envelope's exponent q.
 DECAY = 1.5
 #: The smallest tolerance: below it the relative residual of CG is round-off. It is

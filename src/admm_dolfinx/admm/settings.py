@@ -272,9 +272,10 @@ class ADMMSettings:
             than the multigrid path (bracketed from the mesh, or MUMPS's analysis near
             the thresholds: :mod:`admm_dolfinx.admm.plan`); factorised otherwise.
         petsc_options: Options of the step-1 solver (MUMPS Cholesky, or with an
-            iterative step 1 CG + GAMG, by default; ``ksp_rtol`` fixes an iterative step
-            1's tolerance, which otherwise follows the outer residual by the inexact rule
-            of :mod:`admm_dolfinx.admm.inexact`). Step 1 only: each inner solver (r*,
+            iterative step 1 CG + GAMG stopping on the unpreconditioned residual, by
+            default; ``ksp_rtol`` fixes an iterative step 1's tolerance, which otherwise
+            follows the outer residual by the inexact rule of
+            :mod:`admm_dolfinx.admm.inexact`). Step 1 only: each inner solver (r*,
             the Schur complement, polishing, the surface metric) takes its defaults and
             the PETSc options database under its own prefix (:attr:`prefixes`).
         petsc_options_prefix: The solver's options prefix (see :attr:`prefixes`).
