@@ -23,7 +23,7 @@ Columns: the dofs; ``Σ 2^k s³`` the model's operations before their constant;
 MUMPS's count and ``MUMPS / Σ s³`` (the constant each mesh asks for); whether MUMPS's
 count lies in the bracket; MUMPS's memory, ``MUMPS bytes / Σ s²`` and whether it lies
 in the memory bracket; the seconds of MUMPS's analysis and of the model (the mesh's
-bounds and volume and the count); ``flops vs 1e11`` where the flops bracket lies
+bounds and volume and the count); ``flops vs limit`` where the flops bracket lies
 against ``FACTOR_FLOPS_LIMIT`` (below, above, or straddling it: for a held body whose
 memory fits, a factorisation, multigrid, or MUMPS's analysis decides). For the
 scenes, ``plan`` is the default plan's step 1 and what chose between a factorisation
@@ -152,7 +152,7 @@ def measure(name: str, kind: str, msh, A, problem=None) -> dict:
         "memory in bracket": bracket.memory[0] <= estimate.memory <= bracket.memory[1],
         "analysis s": f"{analysis_s:.3g}",
         "model s": f"{model_s:.2g}",
-        "flops vs 1e11": side,
+        "flops vs limit": side,
         "_ratios": (estimate.flops / operations, estimate.memory / entries),
     }
     if problem is not None:

@@ -33,6 +33,7 @@ run "$py" benchmarks/contact_model.py --quick
 run "$py" benchmarks/scale_3d.py --quick
 run "$py" benchmarks/inner_tolerance.py --quick
 run "$py" benchmarks/factor_prediction.py --quick
+run "$py" benchmarks/step1_crossover.py --quick
 run "$py" benchmarks/floating_3d.py --quick
 run "$py" benchmarks/scale_2d.py --quick
 run "$py" benchmarks/work_precision_adaptive.py --quick

@@ -242,8 +242,9 @@ def test_the_step1_rule_is_monotone_in_the_cost(paper):
     assert np.all(np.diff(iterative.astype(int), axis=1) >= 0)  # more memory: never back
     assert not iterative[0, 0] and iterative[-1, -1]
     # the flop limit, and only memory in the paper's mode
-    assert rule.iterative_at(5e10, 1e8)[0] is False
-    assert rule.iterative_at(5e12, 1e8)[0] == (not paper)
+    limit = plan_module.FACTOR_FLOPS_LIMIT
+    assert rule.iterative_at(limit / 2, 1e8)[0] is False
+    assert rule.iterative_at(limit * 2, 1e8)[0] == (not paper)
 
 
 def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):

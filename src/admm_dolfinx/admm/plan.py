@@ -11,7 +11,7 @@ the plan says what it chose and why (``solver.plan.describe()``, printed by
   In 3D, with ``step1="auto"`` and no solver options: multigrid if the factorisation
   would need more than :data:`MEMORY_FRACTION` of the available memory or more than
   :data:`FACTOR_FLOPS_LIMIT` operations (where the multigrid path is faster:
-  ``python benchmarks/scale_3d.py`` measures both sides of it). What it would need is
+  ``python benchmarks/step1_crossover.py`` measures both sides of it). What it would need is
   bracketed from the mesh (:mod:`~admm_dolfinx.linalg.factor_prediction`), and MUMPS's
   analysis (:func:`~admm_dolfinx.linalg.factor_estimate.mumps_estimate`) is run only
   where the bracket's two ends lead to different choices. With ``mode="paper"`` only memory counts:
@@ -64,11 +64,11 @@ __all__ = [
 #: available is not attempted: step 1 uses multigrid.
 MEMORY_FRACTION = 0.5
 #: In 3D, a factorisation that would cost more operations than this is
-#: slower than the multigrid path on the whole solve (the crossover of
-#: ``python benchmarks/scale_3d.py``), for a floating body too, which the multigrid
-#: path polishes (``python benchmarks/floating_3d.py`` compares it with the factorised
-#: path and its inverse entries).
-FACTOR_FLOPS_LIMIT = 1e11
+#: slower than the multigrid path on the whole solve (the crossover that
+#: ``python benchmarks/step1_crossover.py`` measures on held bodies), for a floating
+#: body too, which the multigrid path polishes (``python benchmarks/floating_3d.py``
+#: compares it with the factorised path and its inverse entries).
+FACTOR_FLOPS_LIMIT = 1e10
 #: Polishing from step 1's factors (``polish="inverse"``) holds the c × c block of
 #: (A + rK)⁻¹ (c ≤ 3m dofs of Γ_C) and its pattern, about 24 c² bytes: at most this
 #: fraction of the memory available...
