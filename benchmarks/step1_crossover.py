@@ -7,14 +7,18 @@ top face, the paper's contact model) on meshes from 3k to 158k dofs, and a held-
 kind, the same block of hexahedra. Each mesh is solved with ``step1="factorised"``
 (MUMPS Cholesky) and with ``step1="iterative"`` (CG + GAMG, the inexact rule), one
 after the other in one run, each timed from the solver's construction to its answer
-(the plan, r*, the set-up and the iterations; assembly excluded), best of
-``--repeat`` interleaved rounds.
+(r*, the set-up and the iterations; assembly excluded), best of ``--repeat``
+interleaved rounds. A path given explicitly skips the choice between them, which the
+default makes first: ``default plan s`` times that choice apart (the mesh's bracket
+of the factorisation's cost, and MUMPS's analysis where the bracket straddles the
+limit).
 
 Columns: dofs, contact nodes, ``MUMPS flops`` (its analysis's operation count for a
 factorisation of A), the seconds and iterations of each path, ``multigrid /
 factorised`` (below 1: multigrid is faster), the largest recomputed KKT residual of
 each (both meet the tolerance 1e-6), ``u gap`` the relative difference of their
-displacements, and what the default (``step1="auto"``) chose and on what basis.
+displacements, and what the default (``step1="auto"``) chose, on what basis and in how
+many seconds.
 
     python benchmarks/step1_crossover.py            # nine meshes (about 7 min)
     python benchmarks/step1_crossover.py --quick    # two small meshes (smoke test)
@@ -31,7 +35,7 @@ from pathlib import Path
 from mpi4py import MPI
 from scale_3d import LADDER, MODEL
 from tables import print_and_save, select
-from timing import best_of_rounds
+from timing import best_of_rounds, timed
 
 import admm_dolfinx
 from admm_dolfinx.admm.plan import FACTOR_FLOPS_LIMIT, make_plan
@@ -100,7 +104,8 @@ def main() -> None:
             min_time=0.0,
         )
         (t_f, (r_f, _)), (t_i, (r_i, _)) = best["factorised"], best["iterative"]
-        plan = make_plan(problem, admm_dolfinx.ADMMSettings.create())
+        settings = admm_dolfinx.ADMMSettings.create()
+        plan_s, plan = timed(lambda p=problem, s=settings: make_plan(p, s))
         gap = (r_i.u.x.petsc_vec - r_f.u.x.petsc_vec).norm() / r_f.u.x.petsc_vec.norm()
         rows.append(
             {
@@ -117,6 +122,7 @@ def main() -> None:
                 "kkt multigrid": f"{r_i.kkt.max():.1e}",
                 "u gap": f"{gap:.1e}",
                 f"default (limit {FACTOR_FLOPS_LIMIT:.0e})": f"{plan.step1} ({plan.step1_basis})",
+                "default plan s": f"{plan_s:.2g}",
             }
         )
         assert r_f.converged and r_i.converged, name

@@ -44,9 +44,10 @@ def test_iterative_step1_gives_the_factorised_answer(scene):
 def test_each_step1_solve_meets_its_tolerance_on_the_true_residual():
     """CG stops on the unpreconditioned residual (CG_RESIDUAL_NORM): after every step-1
     solve the residual recomputed from the matrix, ‖b − (A + rK)x‖, is at most the
-    tolerance the inexact rule set times ‖b‖; and the test costs no multigrid cycle
-    beyond CG's own (one per iteration), where PETSc's default test on the
-    preconditioned residual spends one more per warm-started solve on ‖Bb‖."""
+    tolerance the inexact rule set times ‖b‖ (up to the drift between CG's updated
+    residual and the recomputed one); and the test costs no multigrid cycle beyond
+    CG's own (one per iteration), where PETSc's default test on the preconditioned
+    residual spends two more per warm-started solve (‖Bb‖, and the last residual)."""
     problem = example3(level=1).problem()
     with ADMMSolver(problem, step1="iterative") as solver:
         operator = solver.operator
@@ -58,8 +59,10 @@ def test_each_step1_solve_meets_its_tolerance_on_the_true_residual():
 
         def checking_solve(b, x):
             stage.push()
-            solve(b, x)
-            stage.pop()
+            try:
+                solve(b, x)
+            finally:
+                stage.pop()
             residual = b.duplicate()
             operator.matrix.mult(x, residual)
             residual.aypx(-1.0, b)
@@ -70,8 +73,10 @@ def test_each_step1_solve_meets_its_tolerance_on_the_true_residual():
         result = solver.solve()
         cycles = PETSc.Log.Event("PCApply").getPerfInfo(stage)["count"]
     assert result.converged and len(checked) == result.iterations >= 2
-    assert max(checked) <= 1.0 + 1e-8
-    assert cycles <= result.step1.krylov_iterations + result.step1.solves
+    assert result.step1.unconverged == 0
+    assert max(checked) <= 1.0 + 1e-3
+    its = result.step1.krylov_iterations
+    assert its <= cycles <= its + result.step1.solves
 
 
 def test_the_multigrid_sees_the_rigid_body_modes_and_is_set_up_once_per_r():

@@ -321,8 +321,8 @@ class IterativeOperator(PenalisedOperator):
                 # counted as unconverged, and the KKT check judges the answer
                 ksp.setTolerances(max_it=MAX_KRYLOV_ITERATIONS)
             if "ksp_divtol" not in self._options:
-                # a warm start leaves a tiny initial residual, which CG's preconditioned
-                # residual may exceed many times over on its way down: not a divergence
+                # a warm start leaves a tiny initial residual, which CG's residual may
+                # exceed many times over on its way down: not a divergence
                 ksp.setTolerances(divtol=1e300)
         ksp.setTolerances(rtol=self.rtol)
         return ksp
