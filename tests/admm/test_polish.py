@@ -399,6 +399,40 @@ def test_the_multigrid_walk_remembers_no_coarse_step(monkeypatch):
         assert remembered  # the tight steps (the answer's) are kept
 
 
+def test_a_guess_that_drops_nodes_starts_from_the_last_displacement():
+    """Each multigrid solve of the walk starts from the last guess's displacement u,
+    its new active normal components replaced by the prescribed ones. Started from w
+    instead (u less the last guess's prescribed part), the nodes that leave 𝒜 lost
+    their displacement and the start's residual exceeded the zero start's."""
+    from admm_dolfinx.linalg.petsc import iterative_options
+
+    problem = hertz_sphere(level=1).problem()
+    with ADMMSolver(problem) as solver:
+        lam = solver.solve().multiplier
+    exact = lam > 0.0
+    # the guess without the tenth of the contact zone that carries the least pressure
+    pressures = _global(problem, lam[exact])
+    shrunk = exact & (lam > np.quantile(pressures, 0.1))
+    polisher = SparsePolish(problem, "test_start_", iterative_options(None))
+    try:
+
+        def first_residual(active):
+            ksp = polisher._factorisation()
+            ksp.setConvergenceHistory()
+            polisher._equality_solution(active, polisher.solve_rtol)
+            return ksp.getConvergenceHistory()[0]
+
+        polisher._equality_solution(shrunk, polisher.solve_rtol)  # sets the solver up
+        assert polisher._start is not None
+        polisher._start.set(0.0)
+        zero_start = first_residual(shrunk)  # ‖b‖
+        polisher._equality_solution(exact, polisher.solve_rtol)
+        from_exact = first_residual(shrunk)
+    finally:
+        polisher.destroy()
+    assert from_exact < 0.25 * zero_start
+
+
 def test_a_new_kkt_tol_reaches_the_multigrid_polish():
     """update_settings(kkt_tol) ties the walk's solves to the new tolerance, so the
     polished answer meets it (they were left at the first tolerance's accuracy)."""

@@ -19,7 +19,9 @@ the residual f − A u = NᵀMλ. Â is solved like step 1:
 * **iterative** (the multigrid path, a body too large to factorise): conjugate
   gradients preconditioned by smoothed-aggregation multigrid with A's rigid body
   modes, the hierarchy built on the first Â and kept (only the Galerkin coarse
-  operators follow the next guesses), each solve started from the previous guess's.
+  operators follow the next guesses), each solve started from the previous guess's
+  displacement u with the new guess's active normal components projected out (w = u −
+  u_g: a node that leaves 𝒜 keeps the displacement it had).
   While the set moves by more than :data:`COARSE_MOVES` of its nodes a round, its
   solves stop at :data:`COARSE_RTOL`: the signs far from zero, which are the moves
   then, are already right, and each round costs a fraction of an exact solve. From
@@ -358,7 +360,7 @@ class SparsePolish:
             # P: remove the active normal components
             nodal.scatter(nodal.gather(rhs), work, scale)
             rhs.axpy(-1.0, work)
-            if self.iterative:  # start from the previous guess's w, projected
+            if self.iterative:  # start from the previous guess's u, projected
                 if self._start is None:
                     self._start = problem.create_vector()
                     self._start.set(0.0)
@@ -368,11 +370,12 @@ class SparsePolish:
                 ksp.setTolerances(rtol=rtol)
             ksp.solve(rhs, x)
             check_solve(ksp, "the sparse active-set polish")
-            if self.iterative:
+            x.axpy(1.0, x_g)
+            if self.iterative:  # the next guess starts from this u, not from w: a node
+                # that leaves 𝒜 keeps the displacement that 𝒜 prescribed it
                 assert self._start is not None
                 x.copy(self._start)
                 self.krylov_iterations += ksp.getIterationNumber()
-            x.axpy(1.0, x_g)
             problem.A.mult(x, work)
             work.aypx(-1.0, problem.load_vector())  # f − A u = NᵀMλ on the free dofs
             lam = problem.multiplier_from_residual(work)
