@@ -15,6 +15,7 @@ from admm_dolfinx import ADMMConvergenceError, ADMMSolver
 from admm_dolfinx.admm.inexact import SIGMA_FLOATING, SIGMA_HELD, TAU_FLOOR, InexactRule
 from admm_dolfinx.linalg.factor_estimate import mumps_estimate
 from admm_dolfinx.linalg.factor_prediction import mesh_volume, predict_factorisation
+from admm_dolfinx.penalty.estimate import estimate_penalty
 from admm_dolfinx.scenes import example1, example3, hertz_sphere
 
 pytestmark = pytest.mark.timeout(600)
@@ -307,20 +308,56 @@ def test_the_plan_asks_mumps_analysis_and_says_why(monkeypatch):
 
 
 def test_a_floating_body_on_the_multigrid_path_factorises_nothing(monkeypatch):
-    """r*'s λ_max of a floating body solves with A + r_a K (A alone is singular): on the
-    multigrid path by step 1's own CG + GAMG, never by a factorisation of the body
-    that the plan found too large for one. λ_max is the factorised one's to well
-    under the eigenvalue tolerance, and the solve is exact (polished)."""
+    """r*'s λ_max of a floating body (A alone is singular) on the multigrid path: LOBPCG
+    with the free rigid motion deflated, preconditioned by step 1's multigrid of
+    A + r_a K, never a factorisation of the body that the plan found too large for
+    one. λ_max is the exact pencil's (dense, rigid motions deflated) to the
+    eigenvalue tolerance, and the solve is exact (polished)."""
     import admm_dolfinx.penalty.estimate as estimate_module
 
     problem = hertz_sphere(level=1).problem()
-    with ADMMSolver(problem, step1="factorised", polish=False) as solver:
-        reference = solver.penalty_estimate
+    exact = estimate_penalty(problem, method="dense")
 
     def no_factorisation(*args, **kwargs):
         raise AssertionError("r* factorised the body on the multigrid path")
 
     monkeypatch.setattr(estimate_module, "PenalisedOperator", no_factorisation)
+    with ADMMSolver(problem, step1="iterative") as solver:
+        estimate = solver.penalty_estimate
+        assert estimate.details["lambda_max_method"] == "multigrid"
+        assert estimate.details["rigid_modes"] == 1 and estimate.details["multigrid_shared"]
+        result = solver.solve()
+    assert estimate.lambda_max == pytest.approx(exact.lambda_max, rel=estimate.details["tol"])
+    assert result.converged and result.polish.polished_at == 2
+
+
+def _without_multigrid_lambda_max(monkeypatch):
+    """Make r*'s λ_max fall back to Krylov–Schur with step 1's Krylov solves."""
+    import admm_dolfinx.penalty.estimate as estimate_module
+    from admm_dolfinx.penalty.lambda_max import NeedsFactorisation
+
+    def refuse(*args, **kwargs):
+        raise NeedsFactorisation("refused by the test")
+
+    monkeypatch.setattr(estimate_module, "lambda_max_multigrid", refuse)
+
+
+def test_a_floating_body_falls_back_to_krylov_schur_with_step1_solves(monkeypatch):
+    """Where LOBPCG does not apply, a floating body's λ_max is Krylov–Schur on the
+    compliance, applied by step 1's own CG + GAMG (still no factorisation): λ_max is
+    the factorised Krylov–Schur's to well under the eigenvalue tolerance."""
+    import admm_dolfinx.penalty.estimate as estimate_module
+
+    problem = hertz_sphere(level=1).problem()
+    with ADMMSolver(problem, step1="factorised", polish=False) as solver:
+        reference = solver.penalty_estimate
+    assert reference.details["lambda_max_method"] == "factorised"
+
+    def no_factorisation(*args, **kwargs):
+        raise AssertionError("r* factorised the body on the multigrid path")
+
+    monkeypatch.setattr(estimate_module, "PenalisedOperator", no_factorisation)
+    _without_multigrid_lambda_max(monkeypatch)
     with ADMMSolver(problem, step1="iterative") as solver:
         estimate = solver.penalty_estimate
         assert estimate.details["lambda_max_method"] == "factorised"  # the same Krylov–Schur
@@ -332,9 +369,11 @@ def test_a_floating_body_on_the_multigrid_path_factorises_nothing(monkeypatch):
     assert result.converged and result.polish.polished_at == 2
 
 
-def test_a_floating_body_whose_lambda_max_solves_stop_at_their_limit_is_refused():
-    """An iteration limit in the step-1 options that stops λ_max's Krylov solves is named,
-    on every rank, instead of an eigenvalue of unconverged solves."""
+def test_a_floating_body_whose_lambda_max_solves_stop_at_their_limit_is_refused(monkeypatch):
+    """An iteration limit in the step-1 options that stops λ_max's Krylov solves (the
+    Krylov–Schur fallback) is named, on every rank, instead of an eigenvalue of
+    unconverged solves."""
+    _without_multigrid_lambda_max(monkeypatch)
     problem = hertz_sphere(level=1).problem()
     with pytest.raises(RuntimeError, match="iteration limit"):
         ADMMSolver(problem, step1="iterative", petsc_options={"ksp_max_it": 2})

@@ -6,7 +6,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx import ADMMSolver, estimate_penalty
-from admm_dolfinx.scenes.library import example1, example2, example3
+from admm_dolfinx.scenes.library import example1, example2, example3, hertz_sphere
 
 from dense_reference import algorithm5_eigenvalues, rotated_pencil_eigenvalues
 
@@ -128,6 +128,29 @@ def test_rotated_reference_agrees_with_algorithm5():
     np.testing.assert_allclose(
         rotated_pencil_eigenvalues(problem), algorithm5_eigenvalues(problem), rtol=1e-9
     )
+
+
+@pytest.mark.parametrize("scene", ["cylinder", "sphere"])
+def test_the_floating_motions_as_vectors(scene):
+    """RigidMotions.vectors: motions A does not resist (A d = 0, Dirichlet dofs
+    included) whose normal parts at the contact nodes are the analysis's N d, on
+    any partition."""
+    problem = (example2(level=0) if scene == "cylinder" else hertz_sphere(level=0)).problem()
+    motions = problem.rigid_motions.vectors(problem.V)
+    try:
+        assert len(motions) == problem.rigid_motions.floating == 1
+        for d, normal in zip(motions, problem.rigid_motions.normal_motion, strict=True):
+            work = problem.A.createVecLeft()
+            problem.A.mult(d, work)
+            assert work.norm() <= 1e-10 * problem.stiffness_scale * d.norm()
+            work.destroy()
+            np.testing.assert_allclose(problem.apply_normal(d), normal, atol=1e-12)
+            # Γ_C sees it: the vertical translation, normal to the plane at every node
+            size = d.norm(PETSc.NormType.NORM_INFINITY)
+            assert problem.global_norm(normal, np.inf) == pytest.approx(size, rel=1e-12)
+    finally:
+        for d in motions:
+            d.destroy()
 
 
 @serial_only

@@ -264,7 +264,9 @@ class ADMMSolver:
                 plan.penalty == "local"
                 and isinstance(self.operator, IterativeOperator)
                 and plan.step1_options.get("pc_type") == "gamg"
-                and not problem.rigid_motions.floating  # λ_max is factorised then
+                # a floating body's A is singular: λ_max sets step 1's multigrid up on
+                # A + r_a K instead
+                and not problem.rigid_motions.floating
             ):
                 # step 1's hierarchy, built on A now, preconditions r*'s λ_max too
                 multigrid = self.operator.set_up_hierarchy()

@@ -305,6 +305,20 @@ class IterativeOperator(PenalisedOperator):
         pc = self._factorisation().getPC()
         return pc if pc.getType() == PETSc.PC.Type.GAMG else None
 
+    def multigrid_at(self, r: float) -> PETSc.PC | None:
+        """Set the penalty to r and return the multigrid of A + rK; collective.
+
+        For a floating body, whose A alone is singular: r*'s λ_max preconditions
+        with it at its auxiliary r_a. Valid until the next :meth:`set_penalty`.
+
+        Returns:
+            The preconditioner (this operator's), or None if the options chose no
+            multigrid.
+        """
+        self.set_penalty(r)
+        pc = self._factorisation().getPC()
+        return pc if pc.getType() == PETSc.PC.Type.GAMG else None
+
     def set_tolerance(self, rtol: float) -> None:
         """Relative residual tolerance of the next solves."""
         self.rtol = float(rtol)

@@ -28,7 +28,9 @@ is the one entry point; the method is an explicit choice (``method``):
   of the body (Â for the exact Schur complement, A + r_a NᵀMN for λ_max), in the
   solver's own operator so that the symbolic analysis is shared with step 1; exact
   to ``tol`` and the same on any partition to round-off. A floating body's λ_max is
-  always computed this way (the multigrid needs a positive definite A).
+  computed this way, except on the multigrid path: there LOBPCG deflates its free
+  rigid motions and preconditions with step 1's multigrid of A + r_a K (A alone is
+  singular), and Krylov–Schur with step 1's Krylov solves is the fallback.
 
 :attr:`PenaltyEstimate.solves` counts operator applications: substitutions with a
 factorisation, or AMG V-cycles. ``python benchmarks/penalty_accuracy.py`` measures
@@ -50,7 +52,7 @@ from admm_dolfinx._logging import get_logger, speaking_for
 from admm_dolfinx._mpi import check_same_on_every_rank, raise_collectively
 from admm_dolfinx.linalg.contact_space import ContactSpace
 from admm_dolfinx.operators.condensed import CondensedOperator, condensed_factor_applies
-from admm_dolfinx.operators.penalised import PenalisedOperator
+from admm_dolfinx.operators.penalised import IterativeOperator, PenalisedOperator
 from admm_dolfinx.penalty.dense import dense_extremes
 from admm_dolfinx.penalty.lambda_max import (
     NeedsFactorisation,
@@ -342,7 +344,14 @@ def _iterative_extremes(
             if method == "local":
                 try:
                     lambda_max, info = lambda_max_multigrid(
-                        space, lambda_min, tol, max_it, prefix, multigrid
+                        space,
+                        lambda_min,
+                        tol,
+                        max_it,
+                        prefix,
+                        multigrid,
+                        # a floating body's: step 1's multigrid of A + r_a K
+                        operator if isinstance(operator, IterativeOperator) else None,
                     )
                 except NeedsFactorisation as reason:
                     logger.info("λ_max by factorisation instead of multigrid: %s", reason)

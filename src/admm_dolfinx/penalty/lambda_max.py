@@ -18,10 +18,14 @@ so some global solver is unavoidable, but it need not be a factorisation:
   error is of the order of the squared residual over the gap to the next eigenvalue,
   so the residual test is at the θ tolerance; with a nearly multiple top eigenvalue
   (symmetric bodies) it may stop nearer the second one, within the cluster's spread.
-* ``"factorised"``, and for floating bodies (found when the problem was built:
-  :mod:`admm_dolfinx.problem.rigid_motions`) (:func:`lambda_max_factorised`):
-  Krylov–Schur on M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½} with a factorisation of A + r_a K:
-  exact to the tolerance, and independent of the partition to round-off.
+  A floating body (found when the problem was built:
+  :mod:`admm_dolfinx.problem.rigid_motions`) has a singular A: on the multigrid path
+  the V-cycle is step 1's, of A + r_a K, and the free rigid motions are deflated.
+* ``"factorised"``, and for floating bodies off the multigrid path
+  (:func:`lambda_max_factorised`): Krylov–Schur on M^{½} N (A + r_a K)⁻¹ Nᵀ M^{½}
+  with a factorisation of A + r_a K (step 1's CG + GAMG solves on the multigrid path,
+  where LOBPCG does not apply): exact to the tolerance, and independent of the
+  partition to round-off.
 """
 
 from __future__ import annotations
@@ -83,7 +87,8 @@ BLOCK_SIZE = 1
 #: ``python benchmarks/scale_3d.py`` counts the start's and LOBPCG's together).
 START_CG_STEPS = 2
 #: The relative residual of the Krylov solves with A + r_a K, where the operator is
-#: iterative (a floating body on the multigrid path), as a fraction of the eigenvalue
+#: iterative (a floating body on the multigrid path, where LOBPCG does not apply), as a
+#: fraction of the eigenvalue
 #: tolerance: each application of the compliance is then exact to far below what
 #: the eigensolver resolves, and the rigid motions, where a CG error gathers, are
 #: deflated. ``tests/admm/test_iterative_step1.py`` compares λ_max and r* with those of
@@ -474,6 +479,7 @@ def lambda_max_multigrid(
     max_it: int,
     prefix: str,
     multigrid: PETSc.PC | None = None,
+    operator: IterativeOperator | None = None,
 ) -> tuple[float, dict[str, Any]]:
     """λ_max from LOBPCG + AMG on the full-space pencil K x = θ (A + r_a K) x; collective.
 
@@ -487,15 +493,25 @@ def lambda_max_multigrid(
     already (the iterative step 1's, borrowed); otherwise one is set up here on A
     (options under ``{prefix}lmax_amg_``), once for every r_a tried.
 
+    A floating body's A is singular, and its free rigid motions d_i are the pencil's
+    top eigenvectors (θ = 1/r_a, λ = ∞): they are deflated (the search space is kept
+    (A + r_a K)-orthogonal to them, and the start's loads orthogonal to them, so that
+    their responses are too), and the preconditioner is the multigrid of A + r_a K of
+    ``operator`` (step 1's on the multigrid path, moved to each r_a tried).
+
     Raises:
-        NeedsFactorisation: For a floating body (A is singular) or if LOBPCG did not
-            converge.
+        NeedsFactorisation: For a floating body without a multigrid ``operator``, or
+            if LOBPCG did not converge.
     """
     problem = space.problem
-    if problem.rigid_motions.floating:
-        raise NeedsFactorisation("the body has a rigid motion (A is singular)")
+    floating = problem.rigid_motions.floating > 0
+    if floating and operator is None:
+        raise NeedsFactorisation(
+            "the body has a rigid motion (A is singular) and no multigrid of A + r_a K"
+        )
     shifted = B = K_unit = own = None
     loads: list[PETSc.Vec] = []
+    motions: list[PETSc.Vec] = []
     counts: dict[str, float] = {}
     try:
         shifted = _ShiftedStiffness(problem.A, problem.K)
@@ -506,7 +522,13 @@ def lambda_max_multigrid(
         diagonal.destroy()
         K_unit.scale(1.0 / k_scale)
         loads = affine_pressure_loads(space)
-        if multigrid is None:
+        if floating:
+            # dᵢᵀf = 0 makes B⁻¹f B-orthogonal to dᵢ: the start stays off the rigid motions
+            motions = problem.rigid_motions.vectors(problem.V)
+            for load in loads:
+                for motion in motions:
+                    load.axpy(-motion.dot(load) / motion.dot(motion), motion)
+        elif multigrid is None:
             # one hierarchy on A for every r_a tried (spectrally equivalent to B)
             t0 = time.perf_counter()
             multigrid = own = PETSc.PC().create(comm=space.comm)
@@ -522,6 +544,16 @@ def lambda_max_multigrid(
 
         def top(r_a, rigid):
             nonlocal iterations
+            pc = multigrid
+            if floating:
+                assert operator is not None
+                t0 = time.perf_counter()
+                pc = operator.multigrid_at(r_a)
+                counts["multigrid_setup"] = (
+                    counts.get("multigrid_setup", 0.0) + time.perf_counter() - t0
+                )
+                if pc is None:
+                    raise NeedsFactorisation("step 1's options chose no multigrid")
             # SLEPc's relative residual test is not invariant under scaling of K and B
             # separately: scale both to unit diagonal size, so that the iterations do
             # not depend on the units (E, lengths). θ = θ̃ k_scale / b_scale.
@@ -533,18 +565,19 @@ def lambda_max_multigrid(
                 max_it=min(max_it, _MULTIGRID_MAX_IT),
                 prefix=prefix + "lmax_",
                 trial_loads=loads,
+                deflation=rigid,
                 info=counts,
-                multigrid=multigrid,
+                multigrid=pc,
             )
             iterations += its
             return theta * k_scale / b_scale, vec, its
 
         try:
-            lambda_max, info = _lambda_max_loop(lambda_min, top, [])
+            lambda_max, info = _lambda_max_loop(lambda_min, top, motions)
         except RuntimeError as error:  # LOBPCG did not converge
             raise NeedsFactorisation(str(error)) from error
     finally:
-        for obj in (B, K_unit, own, *loads):
+        for obj in (B, K_unit, own, *loads, *motions):
             if obj is not None:
                 obj.destroy()
         if shifted is not None:

@@ -19,7 +19,7 @@ of ‖d‖ on Γ_C. A few products with A; collective.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -46,10 +46,38 @@ class RigidMotions:
         normal_motion: (N d_i)_j for a basis d_1 … d_floating of them, at the owned
             contact nodes, shape (floating, m_loc): the directions of the contact
             pencil that no penalty changes (its eigenvalue λ = ∞).
+        coefficients: The d_i in the mesh's rigid motions (translations, then
+            rotations about ``center`` scaled by 1/``length``), shape
+            (rigid motions, floating): :meth:`vectors` makes them.
+        center: The centre of the rotations.
+        length: Their scale.
     """
 
     floating: int
     normal_motion: npt.NDArray[np.float64]
+    coefficients: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
+    center: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    length: float = 1.0
+
+    def vectors(self, V: fem.FunctionSpace) -> list[PETSc.Vec]:
+        """The floating motions d_1 … d_floating as vectors of V; collective.
+
+        A d_i = 0 to round-off (Dirichlet dofs included). The caller destroys them.
+        """
+        if self.floating == 0:
+            return []
+        basis = _basis(V, self.center, self.length)
+        try:
+            motions = []
+            for column in self.coefficients.T:
+                vec = basis[0].duplicate()
+                vec.set(0.0)
+                vec.maxpy(column, basis)
+                motions.append(vec)
+            return motions
+        finally:
+            for vec in basis:
+                vec.destroy()
 
 
 #: Rotations (i, j), the motions −x_j e_i + x_i e_j: about z in 2D; in 3D about x, y, z.
@@ -209,4 +237,10 @@ def analyse_rigid_motions(
             "displacement on a symmetry line or plane (fem.dirichletbc(0.0, dofs, "
             "V.sub(i))) or at a point."
         )
-    return RigidMotions(floating=int(floating.shape[1]), normal_motion=normal_part)
+    return RigidMotions(
+        floating=int(floating.shape[1]),
+        normal_motion=normal_part,
+        coefficients=Z,
+        center=center,
+        length=length,
+    )
