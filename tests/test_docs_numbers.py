@@ -714,15 +714,15 @@ QUOTES: list[tuple[str, str, Callable[[], list[str]]]] = [
         "acceleration.md",
         "levels 2–4 (level 4: 490,170 and 496,527 dofs, 6074 and 6565 contact nodes; there "
         "the plan takes the path by itself), one solve after the other in one run: * "
-        "polished, every solve takes 2 iterations, against 129–238 unpolished on the Hertz "
-        "ball and 41–43 on the wide one, all within the KKT tolerance; * on the Hertz ball "
-        "the polished solve takes 0.25–0.63 of the unpolished time, but on the wide ball, "
-        "whose ADMM alone is quick, 0.93–1.12 of it; * either way it costs 7.2–13.1× a "
-        "plain CG + GAMG solve of the same size: the walk takes 11–16 rounds, each 0.8–1.4 "
+        "polished, every solve takes 2 iterations, against 135–238 unpolished on the Hertz "
+        "ball and 42–45 on the wide one, all within the KKT tolerance; * on the Hertz ball "
+        "the polished solve takes 0.19–0.46 of the unpolished time, but on the wide ball, "
+        "whose ADMM alone is quick, 0.65–0.92 of it; * either way it costs 6.0–11.8× a "
+        "plain CG + GAMG solve of the same size: the walk takes 11–16 rounds, each 0.6–1.3 "
         "times a plain solve's Krylov iterations; * where the time goes, in plain solves "
-        "(r* / set-up / walk / rest of the iterations): on the Hertz ball 2.6 / 0.3 / 8.6 / "
-        "0.2 on level 2, 2.5 / 0.3 / 7.8 / 0.2 on level 3, 2.3 / 0.4 / 10.3 / 0.1 on level "
-        "4; * on level 3 it took 0.52 (Hertz) and 0.43 (wide) of the time of the factorised "
+        "(r* / set-up / walk / rest of the iterations): on the Hertz ball 1.3 / 0.4 / 9.8 / "
+        "0.2 on level 2, 0.8 / 0.3 / 5.0 / 0.1 on level 3, 1.0 / 0.3 / 7.9 / 0.1 on level "
+        "4; * on level 3 it took 0.38 (Hertz) and 0.39 (wide) of the time of the factorised "
         'path (`step1="factorised"`, polished from its factors) of the same run',
         _floating_3d,
     ),
