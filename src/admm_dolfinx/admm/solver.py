@@ -278,8 +278,9 @@ class ADMMSolver:
             if plan.penalty != "given":
                 # a condensed operator gives r* densely and serves the ADMM at r*; a
                 # factorised one shares its symbolic analysis with r*'s factorisations;
-                # a floating body's λ_max solves with A + r_a K, by step 1's multigrid on
-                # the multigrid path (never a factorisation of a body too large for one)
+                # a floating body's λ_max preconditions with step 1's multigrid of
+                # A + r_a K on the multigrid path (never a factorisation of a body too
+                # large for one; its Krylov–Schur fallback solves with step 1's CG)
                 shared = schur_source or (
                     self.operator
                     if plan.step1 == "factorised"

@@ -98,7 +98,8 @@ class PenaltyEstimate:
             iterative: solves and seconds per extreme (``solves_min``, ``time_min``,
             ``solves_max``, ``time_max``; ``time_multigrid_setup`` when λ_max came
             from multigrid, 0 with ``multigrid_shared``: step 1's hierarchy, set up
-            by step 1), the auxiliary r_a.
+            by step 1; a floating body's is step 1's, set up here at r_a and counted),
+            the auxiliary r_a.
         condition_number: κ = λ_max / λ_min; the ADMM rate at r* is (√κ − 1)/(√κ + 1).
     """
 

@@ -101,7 +101,10 @@ SOLVE_RTOL_FLOOR = 1e-12
 
 
 class NeedsFactorisation(Exception):
-    """The multigrid λ_max does not apply (floating body) or did not converge."""
+    """The multigrid λ_max does not apply, or did not converge.
+
+    It does not apply to a floating body without step 1's multigrid of A + r_a K.
+    """
 
 
 def _lambda_max_loop(
@@ -368,9 +371,10 @@ def largest_generalized_eigenpair(
         info: If given, the multigrid setup time (``"multigrid_setup"``, seconds) and
             the V-cycles spent on the start (``"start_cycles"``) are added to it.
         multigrid: A preconditioner set up already that approximates B⁻¹ up to a
-            scalar factor (the iterative step 1's, on A; LOBPCG and the start's CG
-            are invariant under that factor); borrowed, not destroyed. Built here on
-            B otherwise (B must then be assembled).
+            scalar factor (the iterative step 1's, on A, or on A + r_a K for a
+            floating body; LOBPCG and the start's CG are invariant under that factor);
+            borrowed, not destroyed. Built here on B otherwise (B must then be
+            assembled).
 
     Returns:
         θ, the eigenvector (caller destroys it) and the iteration count.
@@ -496,8 +500,11 @@ def lambda_max_multigrid(
     A floating body's A is singular, and its free rigid motions d_i are the pencil's
     top eigenvectors (θ = 1/r_a, λ = ∞): they are deflated (the search space is kept
     (A + r_a K)-orthogonal to them, and the start's loads orthogonal to them, so that
-    their responses are too), and the preconditioner is the multigrid of A + r_a K of
-    ``operator`` (step 1's on the multigrid path, moved to each r_a tried).
+    their responses nearly so: the start's CG steps only approximate B⁻¹, and SLEPc
+    removes the rest), and the preconditioner is the multigrid of A + r_a K of
+    ``operator`` (step 1's on the multigrid path, set up at the first r_a tried and
+    moved to the next; ``multigrid`` is not used). That set-up is then r*'s work:
+    ``time_multigrid_setup`` counts it, and ``multigrid_shared`` is False.
 
     Raises:
         NeedsFactorisation: For a floating body without a multigrid ``operator``, or
@@ -523,7 +530,8 @@ def lambda_max_multigrid(
         K_unit.scale(1.0 / k_scale)
         loads = affine_pressure_loads(space)
         if floating:
-            # dᵢᵀf = 0 makes B⁻¹f B-orthogonal to dᵢ: the start stays off the rigid motions
+            # dᵢᵀf = 0 makes B⁻¹f B-orthogonal to dᵢ (the dᵢ are orthonormal): the start
+            # stays near the complement, and SLEPc deflates what its CG steps leave
             motions = problem.rigid_motions.vectors(problem.V)
             for load in loads:
                 for motion in motions:
@@ -587,7 +595,8 @@ def lambda_max_multigrid(
         lobpcg_iterations=iterations,
         lambda_max_method="multigrid",
         time_multigrid_setup=counts.get("multigrid_setup", 0.0),
-        # borrowed: its set-up is step 1's (Timings.factorization), not r*'s
-        multigrid_shared=own is None,
+        # borrowed and set up by step 1 (Timings.factorization), not by r*; a floating
+        # body's is step 1's too, but r* set it up (time_multigrid_setup)
+        multigrid_shared=own is None and not floating,
     )
     return lambda_max, info

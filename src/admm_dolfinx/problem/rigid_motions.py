@@ -62,22 +62,40 @@ class RigidMotions:
     def vectors(self, V: fem.FunctionSpace) -> list[PETSc.Vec]:
         """The floating motions d_1 … d_floating as vectors of V; collective.
 
-        A d_i = 0 to round-off (Dirichlet dofs included). The caller destroys them.
+        A d_i = 0 to round-off (Dirichlet dofs included), and the d_i are orthonormal.
+
+        Args:
+            V: The displacement space the motions were analysed in.
+
+        Returns:
+            One vector per floating motion, ghosts updated (the caller destroys them).
+
+        Raises:
+            ValueError: If the motions' coefficients were not kept (a RigidMotions
+                made by hand).
         """
-        if self.floating == 0:
-            return []
+        if self.coefficients.shape[1] != self.floating:
+            raise ValueError(
+                f"{self.floating} floating motion(s) but coefficients of "
+                f"{self.coefficients.shape[1]}: make RigidMotions by analyse_rigid_motions."
+            )
         basis = _basis(V, self.center, self.length)
+        motions: list[PETSc.Vec] = []
         try:
-            motions = []
             for column in self.coefficients.T:
                 vec = basis[0].duplicate()
+                motions.append(vec)
                 vec.set(0.0)
                 vec.maxpy(column, basis)
-                motions.append(vec)
-            return motions
+                vec.ghostUpdate(PETSc.InsertMode.INSERT, PETSc.ScatterMode.FORWARD)
+        except BaseException:
+            for vec in motions:
+                vec.destroy()
+            raise
         finally:
             for vec in basis:
                 vec.destroy()
+        return motions
 
 
 #: Rotations (i, j), the motions −x_j e_i + x_i e_j: about z in 2D; in 3D about x, y, z.
