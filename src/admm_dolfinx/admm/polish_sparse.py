@@ -55,7 +55,7 @@ from admm_dolfinx._logging import get_logger
 from admm_dolfinx.admm.active_set import ActiveSetWalk
 from admm_dolfinx.admm.inexact import TAU_FLOOR
 from admm_dolfinx.admm.polish_dense import SIGN_TOL
-from admm_dolfinx.linalg.contact_space import NodalMap, projected_stiffness
+from admm_dolfinx.linalg.contact_space import NodalMap, ProjectedStiffness
 from admm_dolfinx.linalg.galerkin import add_to_hierarchy, sparse_difference
 from admm_dolfinx.linalg.petsc import check_solve, create_factor_solver, factor_options
 from admm_dolfinx.problem.contact_problem import ContactProblem
@@ -145,6 +145,8 @@ class SparsePolish:
         self.penalty = float("nan")
         self.setup_time = 0.0
         self._matrix: PETSc.Mat | None = None
+        #: Â of each guess (one pattern: the triple product's symbolic phase done once).
+        self._former: ProjectedStiffness | None = None
         self._ksp: PETSc.KSP | None = None
         self._walk: ActiveSetWalk[tuple] = ActiveSetWalk(self._key)
         self.attempts = self.rounds = self.skipped = 0
@@ -167,10 +169,10 @@ class SparsePolish:
 
     def destroy(self) -> None:
         """Free the factorisation; collective."""
-        for obj in (self._ksp, self._matrix, self._start):
+        for obj in (self._ksp, self._matrix, self._start, self._former):
             if obj is not None:
                 obj.destroy()
-        self._ksp = self._matrix = self._start = None
+        self._ksp = self._matrix = self._start = self._former = None
 
     # ------------------------------------------------------------------ attempt
     def attempt(
@@ -320,31 +322,30 @@ class SparsePolish:
         nodes = c.nodes[active]
         ntilde = c.free_normals[active]
         nodal = NodalMap(nodes, ntilde, bs, problem.gdim)
-        hat = projected_stiffness(problem.A, nodal)
-        try:
-            if self._matrix is None:
-                self._matrix = hat.duplicate(copy=True)
-                self._matrix.setOption(PETSc.Mat.Option.SPD, True)
-                # duplicate() drops the rigid-body near null space that multigrid needs
-                self._matrix.setNearNullSpace(problem.A.getNearNullSpace())
-                ksp = self._ksp = create_factor_solver(
-                    self._matrix,
-                    self.prefix,
-                    self._options,
-                    problem.gdim,
-                    what="the sparse active-set polish",
-                )
-                ksp.setInitialGuessNonzero(self.iterative)
-            elif self.iterative:
-                ksp = self._factorisation()
-                self._update_multigrid(ksp, hat)
-            else:
-                hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-                ksp = self._factorisation()
-                ksp.setOperators(self._matrix)
-                ksp.setUp()
-        finally:
-            hat.destroy()
+        if self._former is None:
+            self._former = ProjectedStiffness(problem.A)
+        hat = self._former.form(nodal)  # the former's: not destroyed here
+        if self._matrix is None:
+            self._matrix = hat.duplicate(copy=True)
+            self._matrix.setOption(PETSc.Mat.Option.SPD, True)
+            # duplicate() drops the rigid-body near null space that multigrid needs
+            self._matrix.setNearNullSpace(problem.A.getNearNullSpace())
+            ksp = self._ksp = create_factor_solver(
+                self._matrix,
+                self.prefix,
+                self._options,
+                problem.gdim,
+                what="the sparse active-set polish",
+            )
+            ksp.setInitialGuessNonzero(self.iterative)
+        elif self.iterative:
+            ksp = self._factorisation()
+            self._update_multigrid(ksp, hat)
+        else:
+            hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            ksp = self._factorisation()
+            ksp.setOperators(self._matrix)
+            ksp.setUp()
         # u_g: the prescribed normal displacement ĝ_j = g_j − (n_j − ñ_j)·u_D at active
         # nodes (the Dirichlet part of the normal), along ñ_j / |ñ_j|²
         x_g, rhs, x, work = (problem.create_vector() for _ in range(4))

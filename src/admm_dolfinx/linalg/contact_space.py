@@ -24,7 +24,7 @@ from slepc4py import SLEPc
 
 from admm_dolfinx.linalg.petsc import mean_diagonal
 
-__all__ = ["ContactSpace", "NodalMap", "projected_stiffness"]
+__all__ = ["ContactSpace", "NodalMap", "ProjectedStiffness", "projected_stiffness"]
 
 
 class NodalMap:
@@ -143,27 +143,72 @@ def projected_stiffness(A: PETSc.Mat, nodal: NodalMap) -> PETSc.Mat:
     Returns:
         Â (the caller destroys it).
     """
-    bs = nodal.bs
-    n_nodes = A.getLocalSize()[0] // bs
-    row0 = A.getOwnershipRange()[0]
-    ntilde = np.zeros((nodal.nodes.size, bs))
-    ntilde[:, : nodal.gdim] = nodal.free_normals
-    outer = np.einsum("ji,jk->jik", ntilde, ntilde)
-    p_blocks = np.tile(np.eye(bs), (n_nodes, 1, 1))
-    p_blocks[nodal.nodes] -= outer / np.einsum("ji,ji->j", ntilde, ntilde)[:, None, None]
-    q_blocks = np.zeros_like(p_blocks)
-    q_blocks[nodal.nodes] = outer
-    cols = row0 + (np.arange(n_nodes)[:, None] * bs + np.arange(bs)[None, :])
-    indices = np.repeat(cols, bs, axis=0).reshape(-1).astype(PETSc.IntType)
-    indptr = np.arange(0, n_nodes * bs * bs + 1, bs, dtype=PETSc.IntType)
-    sizes = A.getSizes()
-    comm = A.getComm()
-    P = PETSc.Mat().createAIJ(sizes, csr=(indptr, indices, p_blocks.reshape(-1)), comm=comm)
-    Q = PETSc.Mat().createAIJ(sizes, csr=(indptr, indices, q_blocks.reshape(-1)), comm=comm)
-    c_scale = mean_diagonal(A)
-    hat = A.PtAP(P)
-    hat.axpy(c_scale, Q, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-    hat.setOption(PETSc.Mat.Option.SPD, True)
-    P.destroy()
-    Q.destroy()
-    return hat
+    former = ProjectedStiffness(A)
+    try:
+        hat = former.form(nodal)
+        former._hat = None  # the caller's now
+        return hat
+    finally:
+        former.destroy()
+
+
+class ProjectedStiffness:
+    """Â (:func:`projected_stiffness`) of one A for guess after guess; collective.
+
+    P holds a full bs × bs block at every node, whatever the guess, so every Â of A has
+    one sparsity pattern: P's values are overwritten in place and the triple product
+    PᵀAP repeats only its numeric phase.
+
+    Args:
+        A: Stiffness (global, or a sub-matrix of whole nodes) with bs dofs per node.
+    """
+
+    def __init__(self, A: PETSc.Mat):
+        self.A = A
+        self._projector: PETSc.Mat | None = None
+        self._hat: PETSc.Mat | None = None
+        self._c = mean_diagonal(A)
+
+    def form(self, nodal: NodalMap) -> PETSc.Mat:
+        """Â of the nodes of ``nodal``: this object's matrix, valid until the next call."""
+        A = self.A
+        bs = nodal.bs
+        n_nodes = A.getLocalSize()[0] // bs
+        row0 = A.getOwnershipRange()[0]
+        ntilde = np.zeros((nodal.nodes.size, bs))
+        ntilde[:, : nodal.gdim] = nodal.free_normals
+        outer = np.einsum("ji,jk->jik", ntilde, ntilde)
+        p_blocks = np.tile(np.eye(bs), (n_nodes, 1, 1))
+        p_blocks[nodal.nodes] -= outer / np.einsum("ji,ji->j", ntilde, ntilde)[:, None, None]
+        q_blocks = np.zeros_like(p_blocks)
+        q_blocks[nodal.nodes] = outer
+        cols = row0 + (np.arange(n_nodes)[:, None] * bs + np.arange(bs)[None, :])
+        indices = np.repeat(cols, bs, axis=0).reshape(-1).astype(PETSc.IntType)
+        indptr = np.arange(0, n_nodes * bs * bs + 1, bs, dtype=PETSc.IntType)
+        sizes = A.getSizes()
+        comm = A.getComm()
+        if self._projector is None:
+            self._projector = PETSc.Mat().createAIJ(
+                sizes, csr=(indptr, indices, p_blocks.reshape(-1)), comm=comm
+            )
+            self._hat = A.PtAP(self._projector)
+        else:
+            assert self._hat is not None
+            # the same pattern: new values in place, the product's numeric phase only
+            self._projector.setValuesCSR(indptr, indices, p_blocks.reshape(-1))
+            self._projector.assemble()
+            A.PtAP(self._projector, result=self._hat)
+        Q = PETSc.Mat().createAIJ(sizes, csr=(indptr, indices, q_blocks.reshape(-1)), comm=comm)
+        try:
+            self._hat.axpy(self._c, Q, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        finally:
+            Q.destroy()
+        self._hat.setOption(PETSc.Mat.Option.SPD, True)
+        return self._hat
+
+    def destroy(self) -> None:
+        """Free P and Â; collective."""
+        for obj in (self._projector, self._hat):
+            if obj is not None:
+                obj.destroy()
+        self._projector = self._hat = None
