@@ -716,13 +716,13 @@ QUOTES: list[tuple[str, str, Callable[[], list[str]]]] = [
         "the plan takes the path by itself), one solve after the other in one run: * "
         "polished, every solve takes 2 iterations, against 135–238 unpolished on the Hertz "
         "ball and 42–45 on the wide one, all within the KKT tolerance; * on the Hertz ball "
-        "the polished solve takes 0.18–0.46 of the unpolished time, but on the wide ball, "
-        "whose ADMM alone is quick, 0.65–0.73 of it; * either way it costs 5.5–9.8× a "
+        "the polished solve takes 0.15–0.46 of the unpolished time, but on the wide ball, "
+        "whose ADMM alone is quick, 0.63–0.85 of it; * either way it costs 4.5–10.9× a "
         "plain CG + GAMG solve of the same size: the walk takes 11–16 rounds, each 0.6–1.3 "
         "times a plain solve's Krylov iterations; * where the time goes, in plain solves "
-        "(r* / set-up / walk / rest of the iterations): on the Hertz ball 0.8 / 0.4 / 4.9 / "
-        "0.1 on level 2, 1.3 / 0.5 / 6.4 / 0.2 on level 3, 0.8 / 0.4 / 8.5 / 0.1 on level "
-        "4; * on level 3 it took 0.40 (Hertz) and 0.25 (wide) of the time of the factorised "
+        "(r* / set-up / walk / rest of the iterations): on the Hertz ball 1.0 / 0.3 / 5.4 / "
+        "0.1 on level 2, 0.9 / 0.3 / 5.3 / 0.1 on level 3, 1.0 / 0.4 / 9.4 / 0.1 on level "
+        "4; * on level 3 it took 0.37 (Hertz) and 0.24 (wide) of the time of the factorised "
         'path (`step1="factorised"`, polished from its factors) of the same run',
         _floating_3d,
     ),
