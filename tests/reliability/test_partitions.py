@@ -110,7 +110,12 @@ def test_floating_body_on_the_multigrid_path_matches_serial(gdim, cell, how):
     _check_partition(problem, how)
     with ADMMSolver(problem, step1="iterative") as solver:
         assert solver.plan.polish == "sparse"
+        estimate = solver.penalty_estimate
         result = solver.solve()
+    if estimate is not None and estimate.details.get("method") == "local":
+        # λ_max by LOBPCG, the free rigid motion deflated, on this partition too
+        assert estimate.details["lambda_max_method"] == "multigrid"
+        assert estimate.details["rigid_modes"] >= 1
     assert result.converged and result.polish.polished_at == result.iterations
     assert result.polish.krylov_iterations > 0
     kkt = compute_kkt_residuals(problem, result.u.x.petsc_vec, result.multiplier)
