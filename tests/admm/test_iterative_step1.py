@@ -381,3 +381,71 @@ def test_a_floating_body_whose_lambda_max_solves_stop_at_their_limit_is_refused(
     problem = hertz_sphere(level=1).problem()
     with pytest.raises(RuntimeError, match="iteration limit"):
         ADMMSolver(problem, step1="iterative", petsc_options={"ksp_max_it": 2})
+
+
+def _no_factorisation(*args, **kwargs):
+    raise AssertionError("r* factorised the body on the multigrid path")
+
+
+def _factorised_reference(problem):
+    """r* of the factorised step 1 (Krylov–Schur on the factorised compliance)."""
+    with ADMMSolver(problem, step1="factorised", polish=False) as solver:
+        reference = solver.penalty_estimate
+    assert reference.details["lambda_max_method"] == "factorised"
+    return reference
+
+
+def test_a_floating_body_whose_step1_has_no_multigrid_takes_krylov_schur(monkeypatch):
+    """Step-1 options without multigrid (CG + Jacobi): step 1 has no multigrid of
+    A + r_a K to precondition LOBPCG, so r*'s λ_max takes the Krylov–Schur route with
+    step 1's own Krylov solves (no factorisation), the factorised λ_max to well under
+    the eigenvalue tolerance, and the solve that follows meets the KKT tolerance."""
+    import admm_dolfinx.penalty.estimate as estimate_module
+
+    problem = hertz_sphere(level=1).problem()
+    reference = _factorised_reference(problem)
+    monkeypatch.setattr(estimate_module, "PenalisedOperator", _no_factorisation)
+    with ADMMSolver(
+        problem, step1="iterative", petsc_options={"ksp_type": "cg", "pc_type": "jacobi"}
+    ) as solver:
+        assert solver.operator.ksp.getPC().getType() == PETSc.PC.Type.JACOBI
+        estimate = solver.penalty_estimate
+        assert estimate.details["lambda_max_method"] == "factorised"
+        result = solver.solve()
+    close = 1e-2 * estimate.details["tol"]
+    assert estimate.lambda_max == pytest.approx(reference.lambda_max, rel=close)
+    assert result.converged and result.kkt.max() <= 1e-6
+
+
+def test_a_floating_body_whose_lobpcg_fails_after_moving_step1_falls_back(monkeypatch):
+    """LOBPCG failing after it moved step 1's multigrid to its r_a: the Krylov–Schur
+    fallback (which sets step 1 to each r_a itself) gives the factorised λ_max, step
+    1 is then at the solver's r, and the solve meets the KKT tolerance."""
+    import admm_dolfinx.penalty.estimate as estimate_module
+    import admm_dolfinx.penalty.lambda_max as lambda_max_module
+    from admm_dolfinx.operators.penalised import IterativeOperator
+
+    problem = hertz_sphere(level=1).problem()
+    reference = _factorised_reference(problem)
+    moved: list[float] = []
+    multigrid_at = IterativeOperator.multigrid_at
+
+    def spy(self, r):
+        moved.append(r)
+        return multigrid_at(self, r)
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("LOBPCG did not converge (made to fail by the test)")
+
+    monkeypatch.setattr(IterativeOperator, "multigrid_at", spy)
+    monkeypatch.setattr(lambda_max_module, "largest_generalized_eigenpair", fail)
+    monkeypatch.setattr(estimate_module, "PenalisedOperator", _no_factorisation)
+    with ADMMSolver(problem, step1="iterative") as solver:
+        estimate = solver.penalty_estimate
+        assert moved, "LOBPCG's route did not set step 1's multigrid up before it failed"
+        assert estimate.details["lambda_max_method"] == "factorised"
+        result = solver.solve()
+        assert solver.operator.penalty == pytest.approx(result.penalty)
+    close = 1e-2 * estimate.details["tol"]
+    assert estimate.lambda_max == pytest.approx(reference.lambda_max, rel=close)
+    assert result.converged and result.kkt.max() <= 1e-6
