@@ -4,6 +4,8 @@ Runs serially and under ``mpiexec -n 2`` (there the polisher reads S_C from a pr
 condensed factorisation and the ADMM solves with a factorisation of A + r*K).
 """
 
+import itertools
+
 import numpy as np
 import pytest
 from mpi4py import MPI
@@ -397,6 +399,43 @@ def test_the_multigrid_walk_remembers_no_coarse_step(monkeypatch):
         assert coarse - tight  # some sets were stepped from coarsely only
         assert not remembered & (coarse - tight)
         assert remembered  # the tight steps (the answer's) are kept
+
+
+def test_a_guess_too_large_sheds_twice_its_rim_until_it_overshoots(monkeypatch):
+    """A coarse round of the multigrid walk that only sheds nodes (λ < 0 on the rim of
+    a guess too large) sheds as many again, those with the least λ, until a round
+    after such a one has nodes to join. The walk then takes fewer rounds than the
+    plain primal-dual steps (SHED_FACTOR = 1), to the same answer, on any partition."""
+    import admm_dolfinx.admm.polish_sparse as sparse_module
+
+    problem = hertz_sphere(level=1).problem()
+    runs = {}
+    for factor in (1.0, sparse_module.SHED_FACTOR):
+        monkeypatch.setattr(sparse_module, "SHED_FACTOR", factor)
+        with ADMMSolver(problem, step1="iterative") as solver:
+            polisher = solver.polisher
+            sizes: list[int] = []
+            equality_solution = polisher._equality_solution
+
+            def recording(active, rtol, equality_solution=equality_solution, sizes=sizes):
+                sizes.append(problem.comm.allreduce(int(active.sum()), op=MPI.SUM))
+                return equality_solution(active, rtol)
+
+            monkeypatch.setattr(polisher, "_equality_solution", recording)
+            result = solver.solve()
+        assert result.converged and result.polish.polished_at == 2
+        runs[factor] = (result, sizes)
+    (plain, plain_sizes), (shed, shed_sizes) = runs[1.0], runs[sparse_module.SHED_FACTOR]
+    assert sparse_module.SHED_FACTOR > 1.0
+    # the plain walk shrinks a guess too large over several rounds; shedding fewer
+    assert shed.polish.rounds < plain.polish.rounds
+    shrinking = [a - b for a, b in itertools.pairwise(plain_sizes) if a > b]
+    first_shed = [a - b for a, b in itertools.pairwise(shed_sizes) if a > b]
+    # both walks reach the same guess too large first: shedding sheds twice its rim
+    assert len(shrinking) >= 4 and first_shed[0] >= 2 * shrinking[0] - 1
+    assert (shed.multiplier > 0).sum() == (plain.multiplier > 0).sum()
+    u = _global(problem, plain.u.x.petsc_vec.array)
+    assert rel_diff(_global(problem, shed.u.x.petsc_vec.array), u) <= 1e-8
 
 
 def test_a_guess_that_drops_nodes_starts_from_the_last_displacement():

@@ -36,6 +36,15 @@ with λ < 0 leave 𝒜, nodes that penetrate join it; at most :data:`MAX_SPARSE_
 new ones per attempt, each computed once per solve: :mod:`admm_dolfinx.admm.active_set`),
 returns only a state that meets every sign condition, and skips attempts while it
 has taken longer than the rest of the iterations.
+
+A guess too large (the second of a floating body's walk: the first few nodes hold it
+so stiffly that most of Γ_C penetrates) sheds only the rim of its excess per step,
+where the pressure of the forced shape turns to tension; the band inside the rim
+follows in the next steps, and the excess shrinks by a fraction per step. A coarse
+round that only sheds nodes therefore sheds :data:`SHED_FACTOR` times as many, the
+rim and the kept nodes of least λ next to it, until a round after such a one has
+nodes to join (it overshot): plain steps follow from there, and the exact rounds
+decide the set as before. ``python benchmarks/floating_3d.py`` prints the rounds.
 """
 
 from __future__ import annotations
@@ -79,6 +88,9 @@ SIGN_FACTOR = 10.0
 #: (10⁻³) misread a sign near the end of the Hertz ball's walk and cost a round; the
 #: walk's Krylov iterations are printed by ``python benchmarks/floating_3d.py``.
 COARSE_RTOL = 1e-4
+#: A coarse round that only sheds nodes (a guess too large) sheds this many times as
+#: many, those with the least λ next to the rim (:meth:`SparsePolish._shed_more`).
+SHED_FACTOR = 2.0
 #: The coarse rounds end at the first round that moves at most this share of the
 #: guessed set's nodes (or none: a set is returned only after an exact solve).
 COARSE_MOVES = 0.02
@@ -208,6 +220,9 @@ class SparsePolish:
         # moves a lot; a set is returned only from a solve to solve_rtol
         coarse = self.iterative and COARSE_RTOL > self.solve_rtol
         provisional: list[npt.NDArray[np.bool_]] = []  # the sets stepped from coarsely
+        # a coarse round that only sheds nodes sheds more (_shed_more), until a round
+        # after such a one has nodes to join: the set overshot, and plain steps follow
+        shedding, shed_last = coarse and SHED_FACTOR > 1.0, False
 
         def moves(active, rtol):
             """(N u, λ, u) of 𝒜 solved to rtol, the nodes that leave and join, and their count."""
@@ -227,7 +242,7 @@ class SparsePolish:
             return (nu, lam, u), leave, join, changes
 
         def step(active):
-            nonlocal coarse
+            nonlocal coarse, shedding, shed_last
             if not self._holds(active):  # Â singular: no equality solution
                 return None, None
             if coarse:
@@ -236,6 +251,12 @@ class SparsePolish:
                 coarse = changes > COARSE_MOVES * size
                 if coarse:
                     provisional.append(active)
+                    joining = self.comm.allreduce(int(join.sum()), op=MPI.SUM)
+                    if joining and shed_last:
+                        shedding = False
+                    shed_last = shedding and not joining
+                    if shed_last:
+                        leave = leave | self._shed_more(active & ~leave, state[1], changes)
             if not coarse:  # also the exact solve of a set the coarse round kept
                 state, leave, join, changes = moves(active, self.solve_rtol)
             if changes == 0:
@@ -252,6 +273,23 @@ class SparsePolish:
             return None
         p, lam, self.displacement = outcome
         return p, lam
+
+    def _shed_more(
+        self, kept: npt.NDArray[np.bool_], lam: npt.NDArray[np.float64], shed: int
+    ) -> npt.NDArray[np.bool_]:
+        """The (SHED_FACTOR − 1) × ``shed`` nodes of ``kept`` with the least λ; collective.
+
+        A guess too large by a band sheds its rim (λ < 0) and keeps the band inside it,
+        which the next rounds shed in turn: the excess shrinks by a fixed fraction per
+        round. The least λ of the kept nodes are next to the rim, where the pressure
+        falls to zero: shedding them now takes the next rounds' steps at once.
+        """
+        extra = int((SHED_FACTOR - 1.0) * shed)
+        values = np.concatenate(self.comm.allgather(lam[kept]))
+        if extra <= 0 or values.size <= extra:
+            return np.zeros_like(kept)
+        threshold = np.partition(values, extra)[extra]  # the same on every rank
+        return kept & (lam < threshold)
 
     def _holds(self, active: npt.NDArray[np.bool_]) -> bool:
         """Whether the constraints of 𝒜 hold every floating motion; collective.
