@@ -19,7 +19,10 @@ computes each step of it once per solve:
   gives nothing;
 * a step computed from an inexact solve (the multigrid walk's coarse rounds) is a
   provisional one: the polisher forgets it after the walk (:meth:`ActiveSetWalk.forget`),
-  so that no later walk follows it instead of the exact step.
+  so that no later walk follows it instead of the exact step. Such a step may also
+  depend on the walk so far (the multigrid walk sheds more of a guess too large until
+  it overshoots: :mod:`admm_dolfinx.admm.polish_sparse`); only the exact steps are the
+  fixed graph's.
 
 ``python benchmarks/scale_2d.py`` shows the ADMM iteration counts this keeps flat as
 the 2D mesh is refined.

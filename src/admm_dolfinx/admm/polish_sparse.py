@@ -277,19 +277,29 @@ class SparsePolish:
     def _shed_more(
         self, kept: npt.NDArray[np.bool_], lam: npt.NDArray[np.float64], shed: int
     ) -> npt.NDArray[np.bool_]:
-        """The (SHED_FACTOR − 1) × ``shed`` nodes of ``kept`` with the least λ; collective.
+        """At most (SHED_FACTOR − 1) × ``shed`` nodes of ``kept``, those of least λ; collective.
 
         A guess too large by a band sheds its rim (λ < 0) and keeps the band inside it,
-        which the next rounds shed in turn: the excess shrinks by a fixed fraction per
-        round. The least λ of the kept nodes are next to the rim, where the pressure
-        falls to zero: shedding them now takes the next rounds' steps at once.
+        which the next rounds shed in turn: the excess shrinks by a fraction per round.
+        Where the pressure falls to zero towards the rim (a Hertzian zone), the least λ
+        of the kept nodes are next to it: shedding them now takes the next rounds' steps
+        at once. Where it does not (a punch's pressure is least at its centre, a second
+        zone may carry little), the next round finds the shed nodes penetrating and
+        joins them, which ends the shedding: a round lost, the answer the same (a state
+        is returned only from an exact round).
+
+        At most half the kept nodes are shed, and none where the rest would not hold a
+        floating body (:meth:`_holds`). Ties at the threshold are kept, on every rank
+        alike (the threshold is chosen from the gathered λ of the owned nodes).
         """
-        extra = int((SHED_FACTOR - 1.0) * shed)
+        none = np.zeros_like(kept)
         values = np.concatenate(self.comm.allgather(lam[kept]))
-        if extra <= 0 or values.size <= extra:
-            return np.zeros_like(kept)
+        extra = min(int((SHED_FACTOR - 1.0) * shed), values.size // 2)
+        if extra <= 0:
+            return none
         threshold = np.partition(values, extra)[extra]  # the same on every rank
-        return kept & (lam < threshold)
+        more = kept & (lam < threshold)
+        return more if self._holds(kept & ~more) else none
 
     def _holds(self, active: npt.NDArray[np.bool_]) -> bool:
         """Whether the constraints of 𝒜 hold every floating motion; collective.
