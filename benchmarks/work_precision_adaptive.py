@@ -167,7 +167,8 @@ def adaptive(comm, body, max_levels):
             "estimate": "–" if h.estimate is None else f"{h.estimate:.2e}",
             "iterations": h.iterations,
             "cpu [s]": h.cpu_seconds,
-            # what the run had spent when this level's solve was done
+            # the CPU of the levels up to this one (each one's solve, estimate, marking,
+            # and the refinement that made the next mesh)
             "cpu to here [s]": sum(k.cpu_seconds for k in run.history[: h.level + 1]),
         }
         for h in run.history
