@@ -439,6 +439,41 @@ def test_a_guess_too_large_sheds_twice_its_rim_until_it_overshoots(monkeypatch):
     assert rel_diff(_global(problem, shed.u.x.petsc_vec.array), u) <= 1e-8
 
 
+def test_a_guess_too_large_stays_coarse_while_it_sheds(monkeypatch):
+    """The coarse rounds end where a round moves few of the guess's nodes, unless the
+    round sheds the rim of a guess too large: a rim of few nodes (a coarse mesh far
+    from the zone) does not mean the set is near its answer. With COARSE_MOVES = 1
+    (every round "few"), the plain steps turn exact after the first shedding round;
+    the shedding walk stays coarse until it overshoots, and gives the same answer."""
+    import admm_dolfinx.admm.polish_sparse as sparse_module
+
+    monkeypatch.setattr(sparse_module, "COARSE_MOVES", 1.0)
+    problem = hertz_sphere(level=1).problem()
+    runs = {}
+    for factor in (1.0, sparse_module.SHED_FACTOR):
+        monkeypatch.setattr(sparse_module, "SHED_FACTOR", factor)
+        with ADMMSolver(problem, step1="iterative") as solver:
+            polisher = solver.polisher
+            tolerances: list[float] = []
+            equality_solution = polisher._equality_solution
+
+            def recording(active, rtol, equality_solution=equality_solution, seen=tolerances):
+                seen.append(rtol)
+                return equality_solution(active, rtol)
+
+            monkeypatch.setattr(polisher, "_equality_solution", recording)
+            result = solver.solve()
+        assert result.converged and result.polish.polished_at == 2
+        coarse = [rtol == sparse_module.COARSE_RTOL for rtol in tolerances]
+        runs[factor] = (result, coarse)
+    (plain, plain_coarse), (shed, shed_coarse) = runs[1.0], runs[sparse_module.SHED_FACTOR]
+    # the first round joins (coarse); the second sheds a rim of fewer than its nodes
+    assert plain_coarse[:3] == [True, True, False] and not any(plain_coarse[2:])
+    assert all(shed_coarse[:4]) and not shed_coarse[-1]
+    u = _global(problem, plain.u.x.petsc_vec.array)
+    assert rel_diff(_global(problem, shed.u.x.petsc_vec.array), u) <= 1e-8
+
+
 def test_a_guess_that_drops_nodes_starts_from_the_last_displacement():
     """Each multigrid solve of the walk starts from the last guess's displacement u,
     its new active normal components replaced by the prescribed ones. Started from w

@@ -22,12 +22,13 @@ the residual f − A u = NᵀMλ. Â is solved like step 1:
   operators follow the next guesses), each solve started from the previous guess's
   displacement u with the new guess's active normal components projected out (w = u −
   u_g: a node that leaves 𝒜 keeps the displacement it had).
-  While the set moves by more than :data:`COARSE_MOVES` of its nodes a round, its
-  solves stop at :data:`COARSE_RTOL`: the signs far from zero, which are the moves
-  then, are already right, and each round costs a fraction of an exact solve. From
-  there on, and always for the set it returns, the solves stop at
-  :data:`POLISH_RTOL_FACTOR` × ``kkt_tol``: the signs of a state it returns, and its
-  KKT residuals, are those of the exact solve.
+  While the set moves by more than :data:`COARSE_MOVES` of its nodes a round, or
+  sheds the rim of a guess too large (below), its solves stop at
+  :data:`COARSE_RTOL`: the signs far from zero, which are the moves then, are
+  already right, and each round costs a fraction of an exact solve. From there on,
+  and always for the set it returns, the solves stop at :data:`POLISH_RTOL_FACTOR` ×
+  ``kkt_tol``: the signs of a state it returns, and its KKT residuals, are those of
+  the exact solve.
 
 Distributed like step 1, on any partition.
 
@@ -248,15 +249,17 @@ class SparsePolish:
             if coarse:
                 state, leave, join, changes = moves(active, COARSE_RTOL)
                 size = self.comm.allreduce(int(active.sum()), op=MPI.SUM)
-                coarse = changes > COARSE_MOVES * size
+                joining = self.comm.allreduce(int(join.sum()), op=MPI.SUM)
+                if joining and shed_last:
+                    shedding = False  # the last shed overshot: plain steps from here
+                shed_last = shedding and changes > 0 and not joining
+                # a guess too large is far from the answer however few nodes its rim
+                # holds (a coarse mesh far from the zone): it stays coarse while it sheds
+                coarse = shed_last or changes > COARSE_MOVES * size
                 if coarse:
                     provisional.append(active)
-                    joining = self.comm.allreduce(int(join.sum()), op=MPI.SUM)
-                    if joining and shed_last:
-                        shedding = False
-                    shed_last = shedding and not joining
-                    if shed_last:
-                        leave = leave | self._shed_more(active & ~leave, state[1], changes)
+                if shed_last:
+                    leave = leave | self._shed_more(active & ~leave, state[1], changes)
             if not coarse:  # also the exact solve of a set the coarse round kept
                 state, leave, join, changes = moves(active, self.solve_rtol)
             if changes == 0:
