@@ -9,6 +9,9 @@ For each mesh, in one run, one after the other:
 
 * ``multigrid``: ``ADMMSolver(problem, step1="iterative")``: the default past the
   limits (``polish sparse``);
+* ``plain steps``: the same with the walk's plain primal-dual steps
+  (``admm_dolfinx.admm.polish_sparse.SHED_FACTOR`` set to 1 for it): what the walk
+  did before it shed twice the rim of a guess too large;
 * ``no polish``: the same with ``polish=False``: what the default did before;
 * ``default``: ``ADMMSolver(problem)``, the plan's own choice (below the limits a
   factorised step 1, polished from its factors), on the meshes up to
@@ -53,6 +56,7 @@ from mpi4py import MPI
 from polish_3d import relative_difference
 from tables import print_and_save, select
 
+import admm_dolfinx.admm.polish_sparse as polish_sparse
 from admm_dolfinx import ADMMSolver
 from admm_dolfinx.linalg.petsc import iterative_options
 from admm_dolfinx.operators.penalised import IterativeOperator
@@ -84,6 +88,16 @@ def contact_solve(problem, **settings):
     with ADMMSolver(problem, **settings) as solver:
         result = solver.solve()
         return result, f"{solver.plan.step1}, polish {solver.plan.polish}"
+
+
+def plain_steps_solve(problem):
+    """The multigrid path's solve with the walk's plain primal-dual steps."""
+    shed = polish_sparse.SHED_FACTOR
+    polish_sparse.SHED_FACTOR = 1.0
+    try:
+        return contact_solve(problem, step1="iterative")
+    finally:
+        polish_sparse.SHED_FACTOR = shed
 
 
 def plain_solve(problem, r):
@@ -125,6 +139,7 @@ def main():
         dofs = problem.A.getSize()[0]
         runs = {
             "multigrid": measured(lambda p=problem: contact_solve(p, step1="iterative")),
+            "plain steps": measured(lambda p=problem: plain_steps_solve(p)),
             "no polish": measured(
                 lambda p=problem: contact_solve(p, step1="iterative", polish=False)
             ),
