@@ -425,8 +425,8 @@ def _floating_3d():
     def whole(x: float) -> str:
         return f"{x:.0f}"
 
-    polished = config("multigrid")
-    assert all(row["its"] == "2" for row in polished)
+    polished, plain_steps = config("multigrid"), config("plain steps")
+    assert all(row["its"] == "2" for row in polished + plain_steps)
     assert all(num(row["KKT"]) <= 1e-6 for row in polished + config("no polish"))
     level4 = [by[(f"{scene} level 4", "plain")] for scene in ("hertz", "wide")]
     hertz, wide = (
@@ -440,6 +440,9 @@ def _floating_3d():
     per_round = [
         num(row["walk Krylov its"]) / num(row["rounds"]) / num(by[(row["mesh"], "plain")]["its"])
         for row in polished
+    ]
+    versus_plain_steps = [
+        num(row["wall [s]"]) / num(by[(row["mesh"], "plain steps")]["wall [s]"]) for row in polished
     ]
     versus_factorised = [
         num(by[(f"{scene} level 3", "multigrid")]["wall [s]"])
@@ -464,6 +467,9 @@ def _floating_3d():
         "solve of the same size: the walk takes "
         f"{span(nums(polished, 'rounds'), lambda x: f'{x:.0f}')} rounds, each "
         f"{span(per_round, lambda x: f'{x:.1f}')} times a plain solve's Krylov iterations"
+        "; * against the walk's plain primal-dual steps (the row *plain steps*), which "
+        f"took {span(nums(plain_steps, 'rounds'), lambda x: f'{x:.0f}')} rounds, it takes "
+        f"{span(versus_plain_steps, f2)} of their time"
         "; * where the time goes, in plain solves (r* / set-up / walk / rest of the "
         "iterations): on the Hertz ball "
         + ", ".join(
@@ -726,13 +732,15 @@ QUOTES: list[tuple[str, str, Callable[[], list[str]]]] = [
         "the plan takes the path by itself), one solve after the other in one run: * "
         "polished, every solve takes 2 iterations, against 135–238 unpolished on the Hertz "
         "ball and 42–45 on the wide one, all within the KKT tolerance; * on the Hertz ball "
-        "the polished solve takes 0.15–0.46 of the unpolished time, but on the wide ball, "
-        "whose ADMM alone is quick, 0.63–0.85 of it; * either way it costs 4.5–10.9× a "
-        "plain CG + GAMG solve of the same size: the walk takes 11–16 rounds, each 0.6–1.3 "
-        "times a plain solve's Krylov iterations; * where the time goes, in plain solves "
-        "(r* / set-up / walk / rest of the iterations): on the Hertz ball 1.0 / 0.3 / 5.4 / "
-        "0.1 on level 2, 0.9 / 0.3 / 5.3 / 0.1 on level 3, 1.0 / 0.4 / 9.4 / 0.1 on level "
-        "4; * on level 3 it took 0.37 (Hertz) and 0.24 (wide) of the time of the factorised "
+        "the polished solve takes 0.14–0.27 of the unpolished time, but on the wide ball, "
+        "whose ADMM alone is quick, 0.51–0.68 of it; * either way it costs 4.4–7.1× a "
+        "plain CG + GAMG solve of the same size: the walk takes 9–11 rounds, each 0.7–0.9 "
+        "times a plain solve's Krylov iterations; * against the walk's plain primal-dual "
+        "steps (the row *plain steps*), which took 11–16 rounds, it takes 0.57–0.94 of "
+        "their time; * where the time goes, in plain solves "
+        "(r* / set-up / walk / rest of the iterations): on the Hertz ball 1.2 / 0.4 / 5.3 / "
+        "0.1 on level 2, 1.0 / 0.3 / 4.9 / 0.1 on level 3, 0.9 / 0.3 / 3.9 / 0.1 on level "
+        "4; * on level 3 it took 0.32 (Hertz) and 0.26 (wide) of the time of the factorised "
         'path (`step1="factorised"`, polished from its factors) of the same run',
         _floating_3d,
     ),
