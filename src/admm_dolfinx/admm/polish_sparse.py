@@ -41,11 +41,14 @@ has taken longer than the rest of the iterations.
 A guess too large (the second of a floating body's walk: the first few nodes hold it
 so stiffly that most of Γ_C penetrates) sheds only the rim of its excess per step,
 where the pressure of the forced shape turns to tension; the band inside the rim
-follows in the next steps, and the excess shrinks by a fraction per step. A coarse
-round that only sheds nodes therefore sheds :data:`SHED_FACTOR` times as many, the
-rim and the kept nodes of least λ next to it, until a round after such a one has
-nodes to join (it overshot): plain steps follow from there, and the exact rounds
-decide the set as before. ``python benchmarks/floating_3d.py`` prints the rounds.
+follows in the next steps, and the excess shrinks by a fraction per step. After a
+coarse round that joins nodes (the guess too small whose step is too large), a
+coarse round that only sheds nodes therefore sheds :data:`SHED_FACTOR` times as
+many, the rim and the kept nodes of least λ next to it, and stays coarse however few
+nodes the rim holds, until a round after such a one has nodes to join (it overshot):
+plain steps follow from there, and the exact rounds decide the set as before. A
+first guess only slightly too large (a warm start) takes the plain steps.
+``python benchmarks/floating_3d.py`` runs the walk with and without the shedding.
 """
 
 from __future__ import annotations
@@ -93,7 +96,8 @@ COARSE_RTOL = 1e-4
 #: many, those with the least λ next to the rim (:meth:`SparsePolish._shed_more`).
 SHED_FACTOR = 2.0
 #: The coarse rounds end at the first round that moves at most this share of the
-#: guessed set's nodes (or none: a set is returned only after an exact solve).
+#: guessed set's nodes (or none: a set is returned only after an exact solve), unless
+#: it sheds the rim of a guess too large (see the module's docstring).
 COARSE_MOVES = 0.02
 
 #: A guess holds the floating motions where the smallest eigenvalue of their normal
@@ -221,9 +225,10 @@ class SparsePolish:
         # moves a lot; a set is returned only from a solve to solve_rtol
         coarse = self.iterative and COARSE_RTOL > self.solve_rtol
         provisional: list[npt.NDArray[np.bool_]] = []  # the sets stepped from coarsely
-        # a coarse round that only sheds nodes sheds more (_shed_more), until a round
-        # after such a one has nodes to join: the set overshot, and plain steps follow
-        shedding, shed_last = coarse and SHED_FACTOR > 1.0, False
+        # after a coarse round that joins nodes (a guess too small, whose step is too
+        # large), a coarse round that only sheds nodes sheds more (_shed_more), until a
+        # round after such a one has nodes to join: the set overshot, plain steps follow
+        shedding, armed, shed_last = coarse and SHED_FACTOR > 1.0, False, False
 
         def moves(active, rtol):
             """(N u, λ, u) of 𝒜 solved to rtol, the nodes that leave and join, and their count."""
@@ -243,7 +248,7 @@ class SparsePolish:
             return (nu, lam, u), leave, join, changes
 
         def step(active):
-            nonlocal coarse, shedding, shed_last
+            nonlocal coarse, shedding, armed, shed_last
             if not self._holds(active):  # Â singular: no equality solution
                 return None, None
             if coarse:
@@ -252,7 +257,8 @@ class SparsePolish:
                 joining = self.comm.allreduce(int(join.sum()), op=MPI.SUM)
                 if joining and shed_last:
                     shedding = False  # the last shed overshot: plain steps from here
-                shed_last = shedding and changes > 0 and not joining
+                shed_last = shedding and armed and changes > 0 and not joining
+                armed = armed or bool(joining)
                 # a guess too large is far from the answer however few nodes its rim
                 # holds (a coarse mesh far from the zone): it stays coarse while it sheds
                 coarse = shed_last or changes > COARSE_MOVES * size
