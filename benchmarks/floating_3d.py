@@ -36,7 +36,8 @@ the ranks), their ratio to the plain solve's, where the wall time went (rank 0's
 step 1's operator and multigrid, the walk, and the rest of the iterations with the
 final KKT check), ADMM iterations, the walk's rounds and Krylov iterations, the
 largest relative KKT residual, ‖u − u_np‖/‖u_np‖ against the
-unpolished answer, and the machine's 1-minute load average when the row started.
+unpolished answer, and the machine's 1-minute load average when the mesh's rows
+started.
 
     python benchmarks/floating_3d.py            # both scenes, levels 2-4 (about 30 min)
     python benchmarks/floating_3d.py --quick    # level 1 of the Hertz ball (smoke test)
