@@ -4,6 +4,7 @@ Runs serially and under ``mpiexec -n 2`` (there the polisher reads S_C from a pr
 condensed factorisation and the ADMM solves with a factorisation of A + r*K).
 """
 
+import functools
 import itertools
 
 import numpy as np
@@ -401,43 +402,62 @@ def test_the_multigrid_walk_remembers_no_coarse_step(monkeypatch):
         assert remembered  # the tight steps (the answer's) are kept
 
 
+def _record_rounds(monkeypatch, problem, polisher) -> list[tuple[int, float]]:
+    """(global size of the guess, rtol) of each equality solve of the walk from now on."""
+    rounds: list[tuple[int, float]] = []
+    # the class's method, so that a second recording does not wrap the first
+    solve = functools.partial(SparsePolish._equality_solution, polisher)
+
+    def recording(active, rtol):
+        rounds.append((problem.comm.allreduce(int(active.sum()), op=MPI.SUM), rtol))
+        return solve(active, rtol)
+
+    monkeypatch.setattr(polisher, "_equality_solution", recording)
+    return rounds
+
+
+def _plain_and_shedding_walks(monkeypatch, problem):
+    """(result, rounds) of the multigrid path's solve with the walk's plain steps
+    (SHED_FACTOR = 1), then with the shedding: each polished at iteration 2."""
+    import admm_dolfinx.admm.polish_sparse as sparse_module
+
+    assert sparse_module.SHED_FACTOR > 1.0
+    runs = []
+    for factor in (1.0, sparse_module.SHED_FACTOR):
+        monkeypatch.setattr(sparse_module, "SHED_FACTOR", factor)
+        with ADMMSolver(problem, step1="iterative") as solver:
+            rounds = _record_rounds(monkeypatch, problem, solver.polisher)
+            result = solver.solve()
+        assert result.converged and result.polish.polished_at == 2
+        runs.append((result, rounds))
+    return runs
+
+
+def _same_answer(problem, plain, shed) -> None:
+    contact = _global(problem, plain.multiplier > 0)
+    assert contact.any() and np.array_equal(_global(problem, shed.multiplier > 0), contact)
+    u = _global(problem, plain.u.x.petsc_vec.array)
+    assert rel_diff(_global(problem, shed.u.x.petsc_vec.array), u) <= 1e-8
+
+
 def test_a_guess_too_large_sheds_twice_its_rim_until_it_overshoots(monkeypatch):
     """A coarse round of the multigrid walk that only sheds nodes (λ < 0 on the rim of
     a guess too large) sheds as many again, those with the least λ, until a round
     after such a one has nodes to join. The walk then takes fewer rounds than the
     plain primal-dual steps (SHED_FACTOR = 1), to the same answer, on any partition."""
-    import admm_dolfinx.admm.polish_sparse as sparse_module
-
     problem = hertz_sphere(level=1).problem()
-    runs = {}
-    for factor in (1.0, sparse_module.SHED_FACTOR):
-        monkeypatch.setattr(sparse_module, "SHED_FACTOR", factor)
-        with ADMMSolver(problem, step1="iterative") as solver:
-            polisher = solver.polisher
-            sizes: list[int] = []
-            equality_solution = polisher._equality_solution
-
-            def recording(active, rtol, equality_solution=equality_solution, sizes=sizes):
-                sizes.append(problem.comm.allreduce(int(active.sum()), op=MPI.SUM))
-                return equality_solution(active, rtol)
-
-            monkeypatch.setattr(polisher, "_equality_solution", recording)
-            result = solver.solve()
-        assert result.converged and result.polish.polished_at == 2
-        runs[factor] = (result, sizes)
-    (plain, plain_sizes), (shed, shed_sizes) = runs[1.0], runs[sparse_module.SHED_FACTOR]
-    assert sparse_module.SHED_FACTOR > 1.0
+    (plain, plain_rounds), (shed, shed_rounds) = _plain_and_shedding_walks(monkeypatch, problem)
     # the plain walk shrinks a guess too large over several rounds; shedding fewer
     assert shed.polish.rounds < plain.polish.rounds
-    shrinking = [a - b for a, b in itertools.pairwise(plain_sizes) if a > b]
-    first_shed = [a - b for a, b in itertools.pairwise(shed_sizes) if a > b]
+
+    def shrinking(rounds):
+        return [a - b for (a, _), (b, _) in itertools.pairwise(rounds) if a > b]
+
+    rims, first_shed = shrinking(plain_rounds), shrinking(shed_rounds)
     # both walks reach the same guess too large first: shedding sheds up to twice its
     # rim (fewer where λ ties at the threshold, or the cap or the hold stops it)
-    assert len(shrinking) >= 4 and shrinking[0] < first_shed[0] <= 2 * shrinking[0]
-    contact = _global(problem, plain.multiplier > 0)
-    assert contact.any() and np.array_equal(_global(problem, shed.multiplier > 0), contact)
-    u = _global(problem, plain.u.x.petsc_vec.array)
-    assert rel_diff(_global(problem, shed.u.x.petsc_vec.array), u) <= 1e-8
+    assert len(rims) >= 4 and rims[0] < first_shed[0] <= 2 * rims[0]
+    _same_answer(problem, plain, shed)
 
 
 def test_a_guess_too_large_stays_coarse_while_it_sheds(monkeypatch):
@@ -450,29 +470,13 @@ def test_a_guess_too_large_stays_coarse_while_it_sheds(monkeypatch):
 
     monkeypatch.setattr(sparse_module, "COARSE_MOVES", 1.0)
     problem = hertz_sphere(level=1).problem()
-    runs = {}
-    for factor in (1.0, sparse_module.SHED_FACTOR):
-        monkeypatch.setattr(sparse_module, "SHED_FACTOR", factor)
-        with ADMMSolver(problem, step1="iterative") as solver:
-            polisher = solver.polisher
-            tolerances: list[float] = []
-            equality_solution = polisher._equality_solution
-
-            def recording(active, rtol, equality_solution=equality_solution, seen=tolerances):
-                seen.append(rtol)
-                return equality_solution(active, rtol)
-
-            monkeypatch.setattr(polisher, "_equality_solution", recording)
-            result = solver.solve()
-        assert result.converged and result.polish.polished_at == 2
-        coarse = [rtol == sparse_module.COARSE_RTOL for rtol in tolerances]
-        runs[factor] = (result, coarse)
-    (plain, plain_coarse), (shed, shed_coarse) = runs[1.0], runs[sparse_module.SHED_FACTOR]
+    (plain, plain_rounds), (shed, shed_rounds) = _plain_and_shedding_walks(monkeypatch, problem)
+    plain_coarse = [rtol == sparse_module.COARSE_RTOL for _, rtol in plain_rounds]
+    shed_coarse = [rtol == sparse_module.COARSE_RTOL for _, rtol in shed_rounds]
     # the first round joins (coarse); the second sheds a rim of fewer than its nodes
     assert plain_coarse[:3] == [True, True, False] and not any(plain_coarse[2:])
     assert all(shed_coarse[:4]) and not shed_coarse[-1]
-    u = _global(problem, plain.u.x.petsc_vec.array)
-    assert rel_diff(_global(problem, shed.u.x.petsc_vec.array), u) <= 1e-8
+    _same_answer(problem, plain, shed)
 
 
 def test_a_guess_slightly_too_large_takes_the_plain_steps(monkeypatch):
@@ -490,24 +494,15 @@ def test_a_guess_slightly_too_large_takes_the_plain_steps(monkeypatch):
         free_gaps = np.sort(_global(problem, gap[~exact & np.isfinite(gap)]))
         count = problem.comm.allreduce(int(exact.sum()), op=MPI.SUM)
         guess = exact | (~exact & (gap <= free_gaps[count // 5]))
-        walks = {}
+        walks = []
         for factor in (1.0, sparse_module.SHED_FACTOR):
             monkeypatch.setattr(sparse_module, "SHED_FACTOR", factor)
-            polisher = solver.polisher
-            polisher.reset()
-            sizes: list[int] = []
-            equality_solution = polisher._equality_solution
-
-            def recording(active, rtol, equality_solution=equality_solution, sizes=sizes):
-                sizes.append(problem.comm.allreduce(int(active.sum()), op=MPI.SUM))
-                return equality_solution(active, rtol)
-
-            monkeypatch.setattr(polisher, "_equality_solution", recording)
-            outcome = polisher.attempt(lam, lam, np.where(guess, 1.0, 0.0))
-            monkeypatch.setattr(polisher, "_equality_solution", equality_solution)
+            solver.polisher.reset()
+            rounds = _record_rounds(monkeypatch, problem, solver.polisher)
+            outcome = solver.polisher.attempt(lam, lam, np.where(guess, 1.0, 0.0))
             assert outcome is not None
-            walks[factor] = (sizes, outcome[1] > 0.0)
-    (plain, plain_set), (shed, shed_set) = walks[1.0], walks[sparse_module.SHED_FACTOR]
+            walks.append(([size for size, _ in rounds], outcome[1] > 0.0))
+    (plain, plain_set), (shed, shed_set) = walks
     assert plain[0] > count and plain[1] < plain[0]  # it shed a rim
     assert shed == plain
     for walked in (plain_set, shed_set):
