@@ -159,6 +159,10 @@ def unique_prefix(stem: str) -> str:
     return f"{stem}{next(_counter)}_"
 
 
+#: No entry in PETSc's database.
+_ABSENT = object()
+
+
 @contextlib.contextmanager
 def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator[None]:
     """Put ``options`` in PETSc's database under ``prefix`` for the ``with`` block only.
@@ -173,10 +177,10 @@ def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator
     """
     opts = PETSc.Options()
     options = dict(options or {})
-    before = {  # "" for a flag
-        key: opts.getString(f"{prefix}{key}") if opts.hasName(f"{prefix}{key}") else None
-        for key in options
-    }
+    # the entries held under exactly these names ("" for a flag): not hasName, which
+    # also finds -mg_levels_key for -mg_levels_3_key (PETSc's numbered prefixes)
+    held = opts.getAll()
+    before = {key: held.get(f"{prefix}{key}", _ABSENT) for key in options}
     for key, value in options.items():
         opts[f"{prefix}{key}"] = value
     try:
@@ -184,7 +188,7 @@ def prefixed_options(prefix: str, options: Mapping[str, Any] | None) -> Iterator
     finally:
         for key in options:
             del opts[f"{prefix}{key}"]
-            if before[key] is not None:
+            if before[key] is not _ABSENT:  # None: a flag
                 opts[f"{prefix}{key}"] = before[key]
 
 
