@@ -3,12 +3,9 @@ would recompute, the same CG iterations, and a fresh set-up where the sum cannot
 
 from __future__ import annotations
 
-import re
-import tempfile
-from pathlib import Path
-
 import numpy as np
 import pytest
+from chebyshev_view import chebyshev_levels
 from petsc4py import PETSc
 
 from admm_dolfinx.linalg.petsc import iterative_options
@@ -28,22 +25,6 @@ def _petscs_set_up(operator: IterativeOperator, r: float) -> None:
     """PETSc's own set-up at r, its hierarchy kept: the Galerkin products recomputed."""
     operator._drop_coarse()
     PenalisedOperator.set_penalty(operator, r)
-
-
-def _chebyshev_bounds(operator: IterativeOperator, name: str) -> list[tuple[str, float]]:
-    """Per Chebyshev level, how its eigenvalue bounds were found and the largest, as
-    the KSP's view reports them (petsc4py has no getter for them)."""
-    comm = operator.problem.mesh.comm
-    path = comm.bcast(str(Path(tempfile.mkdtemp()) / f"{name}.txt") if comm.rank == 0 else None)
-    viewer = PETSc.Viewer().createASCII(path, comm=comm)
-    operator.ksp.view(viewer)
-    viewer.destroy()
-    comm.barrier()
-    found = re.findall(
-        r"eigenvalues (provided|estimated via \w+)\W+min [-\d.e+]+, max ([-\d.e+]+)",
-        Path(path).read_text(),
-    )
-    return [(how, float(largest)) for how, largest in found]
 
 
 def _galerkin_products() -> int:
@@ -73,11 +54,12 @@ def _assert_same_hierarchy(moved: IterativeOperator, recomputed: IterativeOperat
     # set-up has them do, instead of keeping the first set-up's (from smoothing the
     # prolongator at the old r). The estimates agree with PETSc's to the accuracy of a
     # 10-step Krylov estimate from a random start (which PETSc draws per estimator).
-    mine, petscs = _chebyshev_bounds(moved, "moved"), _chebyshev_bounds(recomputed, "petsc")
+    mine = chebyshev_levels(moved.ksp, "moved")
+    petscs = chebyshev_levels(recomputed.ksp, "petsc")
     assert len(mine) == len(petscs) == len(levels) - 1
-    for (how, largest), (_, petscs_largest) in zip(mine, petscs, strict=True):
-        assert how.startswith("estimated via")
-        assert largest == pytest.approx(petscs_largest, rel=0.05)
+    for level, petscs_level in zip(mine, petscs, strict=True):
+        assert level.how.startswith("estimated via")
+        assert level.largest == pytest.approx(petscs_level.largest, rel=0.05)
     (its_moved, x_moved), (its_recomputed, x_recomputed) = (
         _solve(moved, problem),
         _solve(recomputed, problem),

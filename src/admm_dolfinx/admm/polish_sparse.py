@@ -70,7 +70,13 @@ from admm_dolfinx.admm.inexact import TAU_FLOOR
 from admm_dolfinx.admm.polish_dense import SIGN_TOL
 from admm_dolfinx.linalg.contact_space import NodalMap, ProjectedStiffness
 from admm_dolfinx.linalg.galerkin import add_to_hierarchy, sparse_difference
-from admm_dolfinx.linalg.petsc import check_solve, create_factor_solver, factor_options
+from admm_dolfinx.linalg.petsc import (
+    check_solve,
+    create_factor_solver,
+    factor_options,
+    prefixed_options,
+)
+from admm_dolfinx.linalg.smoothers import solve_spd
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["COARSE_RTOL", "MAX_SPARSE_ROUNDS", "POLISH_RTOL_FACTOR", "SparsePolish"]
@@ -359,8 +365,10 @@ class SparsePolish:
             delta = sparse_difference(hat, self._matrix)
             hat.copy(self._matrix, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
             try:
-                if add_to_hierarchy(pc, self._matrix, delta):
-                    return
+                # the smoothers are set up again with the walk's options, as PETSc would
+                with prefixed_options(self.prefix, self._options):
+                    if add_to_hierarchy(pc, self._matrix, delta):
+                        return
             finally:
                 delta.destroy()
             self._updates = False  # the same on every rank
@@ -426,7 +434,11 @@ class SparsePolish:
                 nodal.scatter(nodal.gather(x), work, scale)
                 x.axpy(-1.0, work)
                 ksp.setTolerances(rtol=rtol)
-            ksp.solve(rhs, x)
+            if self.iterative:  # a multigrid found indefinite is made careful
+                with prefixed_options(self.prefix, self._options):
+                    solve_spd(ksp, rhs, x, "the sparse active-set polish")
+            else:
+                ksp.solve(rhs, x)
             check_solve(ksp, "the sparse active-set polish")
             x.axpy(1.0, x_g)
             if self.iterative:  # the next guess starts from this u, not from w: a node

@@ -27,6 +27,8 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from admm_dolfinx.linalg.smoothers import set_up_smoother
+
 __all__ = ["CoarsePenalty", "add_to_hierarchy", "sparse_difference"]
 
 
@@ -80,7 +82,7 @@ class CoarsePenalty:
                     self._projected[level],
                     structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN,
                 )
-            _set_up_smoother(smoother, operator)
+            set_up_smoother(smoother, operator)
         self._coefficient = float(r)
         pc.setReusePreconditioner(True)  # the hierarchy is current: no PETSc set-up
 
@@ -149,7 +151,7 @@ def add_to_hierarchy(pc: PETSc.PC, fine: PETSc.Mat, delta: PETSc.Mat) -> bool:
                     refused = True
                 if comm.allreduce(refused, op=MPI.LOR):
                     return False
-            _set_up_smoother(smoother, operator)
+            set_up_smoother(smoother, operator)
     finally:
         if projected is not delta:
             projected.destroy()
@@ -186,28 +188,3 @@ def sparse_difference(new: PETSc.Mat, old: PETSc.Mat) -> PETSc.Mat:
         comm=new.getComm(),
     )
     return delta
-
-
-def _set_up_smoother(smoother: PETSc.KSP, operator: PETSc.Mat) -> None:
-    """Set a level's smoother (or the coarse solve) up on its changed operator."""
-    operator.setOption(PETSc.Mat.Option.SPD, True)  # axpy forgets it
-    if smoother.getType() == PETSc.KSP.Type.CHEBYSHEV:
-        _estimate_bounds_afresh(smoother)
-    smoother.setOperators(operator, operator)
-    smoother.setUp()  # as PCSetUp_MG: Jacobi, Chebyshev's bounds, coarse LU
-
-
-def _estimate_bounds_afresh(smoother: PETSc.KSP) -> None:
-    """Make a Chebyshev smoother estimate its eigenvalue bounds on its next set-up.
-
-    GAMG's first set-up hands each Chebyshev smoother the extreme eigenvalues of
-    D⁻¹A_l found while smoothing the prolongator; they belong to the operator of that
-    set-up. PETSc's own set-up at a new r (with the interpolation kept) has the
-    smoothers estimate them again, by a few Krylov iterations on the new operator;
-    recreating the Chebyshev context does the same here, the user's options for the
-    smoother applied again. A fresh context each time keeps the estimate a function of
-    the operator alone: a kept estimator's next estimate depends on its history.
-    """
-    smoother.setType(PETSc.KSP.Type.RICHARDSON)
-    smoother.setType(PETSc.KSP.Type.CHEBYSHEV)
-    smoother.setFromOptions()

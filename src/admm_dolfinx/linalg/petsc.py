@@ -381,6 +381,15 @@ def check_solve(ksp: PETSc.KSP, what: str) -> None:
         RuntimeError: With PETSc's reason, if the solve diverged.
     """
     reason = ksp.getConvergedReason()
+    if reason == PETSc.KSP.ConvergedReason.DIVERGED_INDEFINITE_PC:
+        raise RuntimeError(
+            f"The linear solve of {what} failed: its preconditioner is not positive "
+            f"definite (KSP reason {reason}), although the system is. A multigrid's "
+            "Chebyshev smoothers were given eigenvalue bounds below the spectrum, even "
+            "when estimated carefully: widen them in the solver's options (options "
+            f"prefix {ksp.getOptionsPrefix()!r}: mg_levels_ksp_chebyshev_esteig "
+            "0,0.1,0,2), or use a factorisation (step1='factorised') where it fits."
+        )
     if reason < 0:
         failure = describe_factor_failure(ksp)
         raise RuntimeError(

@@ -16,7 +16,13 @@ from dolfinx.common import Timer
 from petsc4py import PETSc
 
 from admm_dolfinx.linalg.galerkin import CoarsePenalty
-from admm_dolfinx.linalg.petsc import PetscOwner, check_solve, create_factor_solver
+from admm_dolfinx.linalg.petsc import (
+    PetscOwner,
+    check_solve,
+    create_factor_solver,
+    prefixed_options,
+)
+from admm_dolfinx.linalg.smoothers import solve_spd
 from admm_dolfinx.problem.contact_problem import ContactProblem
 
 __all__ = ["MAX_KRYLOV_ITERATIONS", "FactorisedOperator", "IterativeOperator", "PenalisedOperator"]
@@ -210,6 +216,8 @@ class IterativeOperator(PenalisedOperator):
         iterations: Krylov iterations of every solve so far.
         last_iterations: Krylov iterations of the last solve.
         unconverged: Solves that stopped at their iteration limit.
+        careful_bounds: Solves that found the multigrid indefinite and made its
+            smoothers' eigenvalue bounds careful.
         rtol: The relative tolerance of the next solve.
     """
 
@@ -223,6 +231,8 @@ class IterativeOperator(PenalisedOperator):
         self.iterations = 0
         self.last_iterations = 0
         self.unconverged = 0
+        #: Solves after which the multigrid's smoothers were made careful.
+        self.careful_bounds = 0
         self.rtol = 1e-8
         self._coarse: CoarsePenalty | None = None
 
@@ -257,7 +267,10 @@ class IterativeOperator(PenalisedOperator):
         matrix = self._form(r)
         with Timer("admm_dolfinx: multigrid coarse operators A_l + r K_l"):
             t0 = time.perf_counter()
-            coarse.move(matrix, r)
+            # the smoothers are set up again: with the step-1 options (a user's
+            # mg_levels_* among them), as PETSc's own set-up would read them
+            with prefixed_options(self.prefix, self._options):
+                coarse.move(matrix, r)
             self.timings["factorization"] = time.perf_counter() - t0
         self.penalty = float(r)
         self._label = f"A + r {self._penalty_name} at r = {r:.6g}"
@@ -342,10 +355,17 @@ class IterativeOperator(PenalisedOperator):
         return ksp
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
-        """Solve (A + rK) x = b from the initial guess x, to :attr:`rtol`."""
+        """Solve (A + rK) x = b from the initial guess x, to :attr:`rtol`.
+
+        A multigrid found indefinite has its smoothers' bounds estimated carefully and
+        the system solved again (:func:`~admm_dolfinx.linalg.smoothers.solve_spd`;
+        counted in :attr:`careful_bounds`).
+        """
         ksp = self._factorisation()
         t0 = time.perf_counter()
-        ksp.solve(b, x)
+        with prefixed_options(self.prefix, self._options):  # as at a new r
+            if solve_spd(ksp, b, x, f"step 1 ({self._label})"):
+                self.careful_bounds += 1
         self.solve_time += time.perf_counter() - t0
         self.solves += 1
         self.last_iterations = ksp.getIterationNumber()
