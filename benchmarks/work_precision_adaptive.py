@@ -25,7 +25,7 @@ to the elastic body for a 1 % target (the finest graded rows show how close). Ev
 row's CPU seconds are process time summed over the ranks, measured in this one run.
 The summary table gives, at 1 % on p0, the CPU of the cheapest uniform mesh from
 which on every uniform level is within 1 %, and of the adaptive run (all its levels:
-it needs three resolved ones to estimate its error), their ratio, and the dofs and
+it needs three, the last two resolved, to estimate its error), their ratio, and the dofs and
 CPU of the first graded mesh from which on every graded level is within 1 % (found
 by comparing with Hertz's answer: a user without one needs the next levels to know).
 The adaptive run is given both ways: where it stopped (its own estimate at most 1 %),

@@ -102,9 +102,27 @@ def test_level_estimate_is_exact_on_a_first_order_sequence():
     # a crossing (last difference small by chance) is bounded by the one before it
     crossing = [1.2, 1.1, 1.0001]
     assert level_estimate(crossing, [True] * 3) >= 0.05 / 1.0001
-    # no estimate from under-resolved levels, nor from two levels
-    assert level_estimate(values, [False, True, True, False, True]) is None
+    # no estimate from an under-resolved last or second-last level, nor from two levels
+    assert level_estimate(values, [True, True, True, False, True]) is None
+    assert level_estimate(values, [True, True, True, True, False]) is None
     assert level_estimate(values[:2], [True, True]) is None
+
+
+def test_level_estimate_takes_an_under_resolved_third_last_level_for_its_order_only():
+    """The last difference is between resolved levels; the one before only sets p.
+
+    Whatever the third-last value, the estimate is at least d₁/3 (the order taken at
+    most 2), as from three resolved levels, and a pre-asymptotic third-last level (far
+    off, as under-resolved ones are) only raises it through the guard d₀ 2^{-p}.
+    """
+    resolved = [False, True, True]
+    last = [1.0, 1.01]  # d1 = 0.01
+    for first in (0.2, 0.9, 0.96, 0.97, 0.99, 1.0, 1.02, 1.5, 3.0):
+        estimate = level_estimate([first, *last], resolved)
+        assert estimate is not None
+        assert estimate * last[-1] >= 0.01 / 3.0 - 1e-15
+    # far off: the guard, d0 / 4 / 3
+    assert level_estimate([0.2, *last], resolved) * 1.01 == pytest.approx(0.8 / 12.0)
 
 
 def test_doerfler_marks_the_same_edges_on_every_partition():

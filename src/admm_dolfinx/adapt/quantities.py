@@ -10,8 +10,12 @@ quantity Q that converges at the order p in that size has, on level k,
 [1/2, 2]: 2 is the order of the recovered peak (a least-squares quadratic,
 :mod:`admm_dolfinx.adapt.recovery`) on a smooth pressure, 1/2 keeps a stalling sequence
 from dividing by almost nothing. A level whose contact zone is under-resolved
-(:mod:`admm_dolfinx.problem.resolution`) gives no estimate: the difference to it says
-nothing about the error.
+(:mod:`admm_dolfinx.problem.resolution`) gives no estimate, nor does the next: the
+last difference d₁ is always between two resolved levels. The level before them may
+be under-resolved: its difference d₀ only sets the order and the guard. Whatever
+it is, the estimate is at least d₁/3 (the order taken at most 2), the least that
+three resolved levels give too; and an under-resolved level is usually far off
+(d₀ ≥ 12 d₁), where the guard d₀/12 is the estimate: more than d₁/3.
 
 The upper end of that range is a trade, measured by
 ``python benchmarks/work_precision_adaptive.py`` (its levels table): capped at 1, a last
@@ -75,10 +79,11 @@ def level_estimate(values: Sequence[float], resolved: Sequence[bool]) -> float |
         resolved: Whether each level's contact zone was resolved.
 
     Returns:
-        e_k / abs(Q_k), or None (fewer than three resolved levels at the end, Q_k = 0, or
+        e_k / abs(Q_k), or None (fewer than three levels, either of the last two
+        under-resolved (the third-last may be: it only sets the order), Q_k = 0, or
         the last three values equal: a quantity that does not move is not converging).
     """
-    if len(values) < 3 or not all(resolved[-3:]) or values[-1] == 0.0:
+    if len(values) < 3 or not all(resolved[-2:]) or values[-1] == 0.0:
         return None
     last, before = abs(values[-1] - values[-2]), abs(values[-2] - values[-3])
     if last == 0.0 and before == 0.0:  # a quantity that does not move says nothing
