@@ -26,6 +26,7 @@ from admm_dolfinx.scenes.meshing import (
     check_level,
     lower_ball,
     mesh_and_facet_tags,
+    punch_block,
     quarter_disc,
     rectangle,
     structured_rectangle,
@@ -42,6 +43,7 @@ __all__ = [
     "example3",
     "example3_hexahedral",
     "flat_punch",
+    "flat_punch_graded",
     "flat_punch_on",
     "hertz",
     "hertz_solution",
@@ -817,7 +819,8 @@ class FlatPunch(Obstacle):
 
     def signed_distance(self, x):  # noqa: D102
         x = np.asarray(x, dtype=np.float64)
-        under = np.hypot(x[:, 0], x[:, 1]) <= self.radius
+        # a mesh that follows the rim puts nodes on it to round-off: they are under it
+        under = np.hypot(x[:, 0], x[:, 1]) <= self.radius * (1.0 + RIM_TOLERANCE)
         g = np.where(under, -(x[:, 2] + self.depth), np.inf)
         normal = np.zeros_like(x)
         normal[:, 2] = -1.0
@@ -826,6 +829,9 @@ class FlatPunch(Obstacle):
     def __repr__(self) -> str:
         return f"FlatPunch(radius={self.radius}, depth={self.depth})"
 
+
+#: Points this far outside the punch's rim, relative to its radius, are under it.
+RIM_TOLERANCE = 1e-12
 
 #: Facet tags of the flat-punch block.
 FLAT_PUNCH_TAGS = {"top": 1, "bottom": 2, "sym_x": 3, "sym_y": 4, "side": 5}
@@ -882,6 +888,48 @@ def flat_punch(
     values[np.abs(mid[:, 2]) < tol] = FLAT_PUNCH_TAGS["top"]
     tags = dmesh.meshtags(msh, fdim, boundary.astype(np.int32), values)
     return flat_punch_on(msh, tags, radius=radius, depth=depth, E=E, nu=nu)
+
+
+def flat_punch_graded(
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    *,
+    level: int = 0,
+    radius: float = 1.0,
+    depth: float = 0.01,
+    size: float = 1000.0,
+    grading: float = 0.3,
+    E: float = 1.0,
+    nu: float = 0.3,
+) -> Scene:
+    """The flat punch of :func:`flat_punch` on a gmsh mesh graded by hand towards its rim.
+
+    The mesh follows the rim (nodes on the circle r = a, where the pressure is
+    singular) with the element size a/4 / 2^level there, growing linearly with the
+    distance from the rim at the rate ``grading`` / 2^level (both halve per level,
+    so the whole mesh is finer on every level, not only the rim).
+
+    Args:
+        comm: Communicator.
+        level: Refinement level.
+        radius: The punch's radius a.
+        depth: δ.
+        size: L.
+        grading: The size's growth with the distance from the rim on level 0.
+        E: Young's modulus.
+        nu: Poisson ratio.
+
+    Returns:
+        The scene, with ``info`` as :func:`flat_punch` gives it.
+    """
+    level = check_level("level", level)
+    check_lengths(radius=radius, depth=depth, size=size, grading=grading)
+    h_rim = 0.25 * radius / 2**level
+    data = punch_block(comm, size, radius, h_rim, grading / 2**level, FLAT_PUNCH_TAGS)
+    msh, tags = mesh_and_facet_tags(data)
+    scene = flat_punch_on(msh, tags, radius=radius, depth=depth, E=E, nu=nu)
+    scene.h = h_rim
+    scene.info["level"] = level
+    return scene
 
 
 def flat_punch_on(

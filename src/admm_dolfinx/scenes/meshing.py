@@ -28,6 +28,7 @@ __all__ = [
     "gmsh_session",
     "lower_ball",
     "mesh_and_facet_tags",
+    "punch_block",
     "quarter_disc",
     "rectangle",
     "structured_rectangle",
@@ -387,6 +388,80 @@ def box(
             gmsh.model.mesh.refine()
 
     return build_on_root(comm, "box", 3, build)
+
+
+def punch_block(
+    comm: MPI.Comm,
+    size: float,
+    radius: float,
+    h_rim: float,
+    grading: float,
+    tags: dict[str, int],
+) -> MeshData:
+    """A quarter block [0, L]² × [−L, 0] whose top face follows a punch's rim.
+
+    The top face z = 0 is split along the quarter circle of radius a around the z
+    axis, so mesh nodes lie on the rim where the pressure under a flat punch is
+    singular. The element size is ``h_rim`` on the rim and grows linearly with the
+    distance d from it, h = h_rim + ``grading`` d, up to L/4. Faces: ``"top"`` (both
+    parts), ``"bottom"`` (z = −L), ``"sym_x"`` (x = 0), ``"sym_y"`` (y = 0) and
+    ``"side"`` (x = L, y = L).
+
+    Args:
+        comm: Communicator.
+        size: L.
+        radius: The rim's radius a.
+        h_rim: Element size on the rim.
+        grading: Growth of the element size with the distance from the rim.
+        tags: Tags of the faces named above.
+
+    Returns:
+        Mesh data.
+    """
+    check_lengths(size=size, radius=radius, h_rim=h_rim, grading=grading)
+    if radius >= size:
+        raise ValueError(f"The rim's radius {radius} must be less than the block's size {size}.")
+    L, a = size, radius
+
+    def build(gmsh):
+        occ = gmsh.model.occ
+        block = occ.addBox(0.0, 0.0, -L, L, L, L)
+        disc = occ.addDisk(0.0, 0.0, 0.0, a, a)
+        quarter = occ.addRectangle(0.0, 0.0, 0.0, a, a)
+        cut, _ = occ.intersect([(2, disc)], [(2, quarter)])
+        out, _ = occ.fragment([(3, block)], cut)
+        occ.synchronize()
+        volumes = [e for d, e in out if d == 3]
+        gmsh.model.addPhysicalGroup(3, volumes, 1)
+        eps = 1e-8 * L
+        _tag_curves_by_center(
+            gmsh,
+            2,
+            {
+                tags["top"]: lambda c: abs(c[2]) < eps,
+                tags["bottom"]: lambda c: abs(c[2] + L) < eps,
+                tags["sym_x"]: lambda c: abs(c[0]) < eps,
+                tags["sym_y"]: lambda c: abs(c[1]) < eps,
+                tags["side"]: lambda c: True,
+            },
+        )
+        # the one curved edge (OCC reports the arc as a circle or an ellipse)
+        rim = [e for _, e in gmsh.model.getEntities(1) if gmsh.model.getType(1, e) != "Line"]
+        if len(rim) != 1:
+            raise RuntimeError(f"punch_block: expected one rim curve, found {len(rim)}.")
+        field = gmsh.model.mesh.field
+        dist = field.add("Distance")
+        field.setNumbers(dist, "CurvesList", rim)
+        field.setNumber(dist, "Sampling", max(100, int(4.0 * a / h_rim)))
+        f = field.add("MathEval")
+        field.setString(f, "F", f"Min({h_rim} + {grading} * F{dist}, {0.25 * L})")
+        field.setAsBackgroundMesh(f)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.model.mesh.generate(3)
+
+    return build_on_root(comm, "punch_block", 3, build)
 
 
 def lower_ball(
