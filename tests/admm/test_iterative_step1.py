@@ -161,6 +161,24 @@ def test_a_fixed_inner_tolerance_stalls_and_says_so():
         assert solver.solve().converged
 
 
+def test_step1_solves_at_their_iteration_limit_are_named_in_the_error():
+    """A solve that fails because step 1's Krylov solves stop at their iteration limit
+    says so, not "increase max_iter": more outer iterations do not mend the inner
+    solver. A limit the user set is reached by design: it is no sign of a failed
+    multigrid, whose smoothers are then left as they are."""
+    problem = example3(level=1).problem()
+    options = {"ksp_max_it": 1}  # every warm-started solve stops after one iteration
+    with ADMMSolver(problem, step1="iterative", petsc_options=options, max_iter=8) as solver:
+        with pytest.raises(ADMMConvergenceError) as info:
+            solver.solve()
+        assert solver.operator.careful_bounds == 0
+    message = str(info.value)
+    step1 = info.value.result.step1
+    assert step1.unconverged > 0
+    assert f"{step1.unconverged} of the {step1.solves} step-1 solves" in message
+    assert "Krylov iteration limit" in message and "increase max_iter" not in message
+
+
 def test_inexact_rule_is_summable_tied_to_the_residual_and_tightens():
     rule = InexactRule(sigma=1e-3)
     taus = [rule.tolerance(k, None) for k in range(1, 2000)]

@@ -62,7 +62,17 @@ def failure_message(result: ADMMResult) -> str:
         if hand
         else "increase max_iter"
     )
-    if isinstance(result.plan.ksp_rtol, float):
+    step1 = result.step1
+    if step1 is not None and step1.unconverged > 0:
+        advice = (
+            f"{step1.unconverged} of the {step1.solves} step-1 solves stopped at their "
+            "Krylov iteration limit short of their tolerance, and more ADMM iterations "
+            "do not mend the inner solver: raise ksp_max_it in petsc_options if you set "
+            "it, give step 1 a stronger preconditioner there, or use "
+            "step1='factorised' where a factorisation fits (a body that its Dirichlet "
+            "conditions barely hold makes the system nearly singular: check them)"
+        )
+    elif isinstance(result.plan.ksp_rtol, float):
         advice = (
             f"the step-1 tolerance is fixed at ksp_rtol = {result.plan.ksp_rtol:g}, and "
             "the outer iteration stalls at the level of a fixed inner error: drop "

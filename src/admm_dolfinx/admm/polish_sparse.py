@@ -436,7 +436,8 @@ class SparsePolish:
                 ksp.setTolerances(rtol=rtol)
             if self.iterative:  # a multigrid found indefinite is made careful
                 with prefixed_options(self.prefix, self._options):
-                    solve_spd(ksp, rhs, x, "the sparse active-set polish")
+                    ours = "ksp_max_it" not in self._options
+                    solve_spd(ksp, rhs, x, "the sparse active-set polish", limit_is_ours=ours)
             else:
                 ksp.solve(rhs, x)
             check_solve(ksp, "the sparse active-set polish")

@@ -101,13 +101,17 @@ def _make_careful(pc: PETSc.PC) -> bool:
     return bool(smoothers)
 
 
-def solve_spd(ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, what: str) -> bool:
+def solve_spd(
+    ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, what: str, *, limit_is_ours: bool = True
+) -> bool:
     """``ksp.solve(b, x)`` for an SPD system, solved again if its multigrid failed.
 
     A multigrid whose smoothers' bounds fall short of the spectrum shows itself in
     one of two ways: CG meets a negative curvature of the preconditioner
     (``KSP_DIVERGED_INDEFINITE_PC``), or it crawls to its iteration limit
-    (``KSP_DIVERGED_ITS``). Either way, the first time, the Chebyshev levels' bounds
+    (``KSP_DIVERGED_ITS``; only a sign where the limit is the package's own, large
+    one: a limit the user set is reached by design). Either way, the first time, the
+    Chebyshev levels' bounds
     are estimated carefully (:data:`CAREFUL_OPTIONS`, kept from then on) and the
     system is solved again from the same start. x is the initial guess (with a
     nonzero initial guess set on ``ksp``) and the solution. The caller checks the
@@ -119,14 +123,17 @@ def solve_spd(ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, what: str) -> bool:
         b: The right-hand side.
         x: The initial guess, then the solution.
         what: What is solved, for the log.
+        limit_is_ours: Whether the iteration limit is the package's (not the user's
+            ``ksp_max_it``): reaching it then counts as a failed multigrid.
 
     Returns:
         Whether the bounds were made careful (and the system solved again).
     """
     failures = {
         PETSc.KSP.ConvergedReason.DIVERGED_INDEFINITE_PC: "it is not positive definite",
-        PETSc.KSP.ConvergedReason.DIVERGED_MAX_IT: "CG reached its iteration limit",
     }
+    if limit_is_ours:
+        failures[PETSc.KSP.ConvergedReason.DIVERGED_MAX_IT] = "CG reached its iteration limit"
     pc = ksp.getPC()
     start = None
     if any(not _is_careful(s) for s in _chebyshev_smoothers(pc)):

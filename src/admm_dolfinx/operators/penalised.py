@@ -364,7 +364,8 @@ class IterativeOperator(PenalisedOperator):
         ksp = self._factorisation()
         t0 = time.perf_counter()
         with prefixed_options(self.prefix, self._options):  # as at a new r
-            if solve_spd(ksp, b, x, f"step 1 ({self._label})"):
+            ours = "ksp_max_it" not in self._options
+            if solve_spd(ksp, b, x, f"step 1 ({self._label})", limit_is_ours=ours):
                 self.careful_bounds += 1
         self.solve_time += time.perf_counter() - t0
         self.solves += 1
