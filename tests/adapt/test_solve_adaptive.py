@@ -198,28 +198,36 @@ def test_refuses_a_build_that_does_not_return_a_problem_on_its_mesh():
 
 
 @pytest.mark.timeout(300)
-def test_flat_punch_is_not_called_done_while_its_force_is_off():
-    """A zone that is not Hertzian gives no estimate rather than a false one.
+def test_flat_punch_force_reaches_its_target_with_an_honest_estimate():
+    """The contact force of Boussinesq's punch, estimated as the strain energy's error.
 
-    Boussinesq's flat punch: the contact zone's edge is a staircase of nodes on any
-    mesh that does not follow it, and the force converges erratically (it stalls
-    near 3 % off for levels on end): successive differences would pass it for
-    converged. The zone is never judged resolved, so no estimate is given, and the
-    run ends with AdaptiveLimitError instead of a claim.
+    The punch's pressure is infinite at its rim, so no level's zone is resolved in the
+    sense of a peak pressure, and its force converges erratically level by level
+    (successive differences stall and would pass it for converged). Pressed δ into
+    the block, the punch's force is the strain energy's conjugate (a(u, u) = F δ): its
+    relative error is the energy's, which the hierarchical estimator gives on each
+    level. Judged against Boussinesq's F = 2 a E* δ on every level that has an
+    estimate, and where the run stops.
     """
+    target = 0.05
     scene = lib.flat_punch(MPI.COMM_WORLD, size=1000.0)
-    with pytest.raises(ad.AdaptiveLimitError) as err:
-        ad.solve_adaptive(
-            lambda m, t: lib.flat_punch_on(m, t).problem(),
-            scene.mesh,
-            scene.facet_tags,
-            target=0.01,
-            quantity="contact_force",
-            max_levels=11,
-        )
-    adaptive = err.value.adaptive
-    force = np.linalg.norm(adaptive.result.contact_force)
-    assert abs(force / scene.info["force"] - 1.0) > 0.01  # it is indeed not there
-    assert not adaptive.converged
-    assert all(level.estimate is None for level in adaptive.history)
-    assert adaptive.history[-1].active > 1  # the fallback found the zone
+    adaptive = ad.solve_adaptive(
+        lambda m, t: lib.flat_punch_on(m, t).problem(),
+        scene.mesh,
+        scene.facet_tags,
+        target=target,
+        quantity="contact_force",
+        max_levels=24,
+    )
+    force = scene.info["force"]
+    assert adaptive.converged and adaptive.estimated_error <= target
+    assert adaptive.result.converged
+    true = abs(adaptive.value / force - 1.0)
+    # the estimate's effectivity is near 1, not exactly 1: where it stops the force is
+    # within the target, or just past it
+    assert true <= 1.2 * target
+    estimated = [h for h in adaptive.history if h.estimate is not None]
+    assert estimated
+    for h in estimated:
+        error = abs(h.quantity / force - 1.0)
+        assert error / HONESTY <= h.estimate <= HONESTY * error, h

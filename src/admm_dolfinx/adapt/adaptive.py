@@ -6,13 +6,15 @@
    rebuilds their own forms, materials, loads and Dirichlet conditions), started from
    the previous level's solution interpolated
    (:func:`~admm_dolfinx.adapt.refinement.transfer_solution`).
-2. **Estimate**: the error of the quantity from the last levels
-   (:mod:`admm_dolfinx.adapt.quantities`), and the error's distribution over the edges
-   by the hierarchical estimator (:mod:`admm_dolfinx.adapt.estimator`).
+2. **Estimate** the error's distribution over the edges by the hierarchical
+   estimator (:mod:`admm_dolfinx.adapt.estimator`), and the quantity's error: a
+   local one's (the peak pressure, the contact area) from the last levels
+   (:mod:`admm_dolfinx.adapt.quantities`), the contact force's as the relative error
+   of the strain energy, η²/(a(u_h, u_h) − η²).
 3. **Stop** when the quantity's estimated error is at most ``target``.
-4. **Mark** Dörfler's bulk of the edges and the contact zone
-   (:mod:`admm_dolfinx.adapt.marking`) and **refine** them, the facet tags carried and
-   Γ_C placed on the body's true surface if one is given
+4. **Mark** Dörfler's bulk of the edges, and for a local quantity the contact zone
+   and a grading around it (:mod:`admm_dolfinx.adapt.marking`), and **refine** them,
+   the facet tags carried and Γ_C placed on the body's true surface if one is given
    (:mod:`admm_dolfinx.adapt.refinement`).
 
 Every step is collective and partition-independent (the marking included), so the
@@ -33,7 +35,7 @@ from mpi4py import MPI
 
 from admm_dolfinx._logging import get_logger, speaking_for
 from admm_dolfinx._mpi import collective_call
-from admm_dolfinx.adapt.estimator import edge_indicators
+from admm_dolfinx.adapt.estimator import edge_indicators, relative_energy_error
 from admm_dolfinx.adapt.marking import (
     contact_zone_edges,
     count_edges,
@@ -59,9 +61,18 @@ logger = get_logger(__name__)
 #: Dörfler's bulk fraction θ by default.
 DEFAULT_THETA = 0.5
 #: The quantities read off the contact zone: their estimator is localised there
-#: (:meth:`~admm_dolfinx.adapt.estimator.EdgeIndicators.localised`). The contact force
-#: depends on the whole body's stiffness: its estimator is the energy norm's.
+#: (:meth:`~admm_dolfinx.adapt.estimator.EdgeIndicators.localised`), the zone is split
+#: at every level and its error is estimated from successive levels
+#: (:func:`~admm_dolfinx.adapt.quantities.level_estimate`).
 LOCAL_QUANTITIES = ("max_pressure", "contact_area")
+#: The quantities of the whole body's stiffness: the contact force, the strain energy's
+#: conjugate where the obstacle's motion drives the body. Their error is the relative
+#: energy error η²/(a(u_h, u_h) − η²) on each level
+#: (:func:`~admm_dolfinx.adapt.estimator.relative_energy_error`), and the marking is
+#: Dörfler's alone on the energy-norm estimator: splitting the whole contact zone at
+#: every level (what the level differences of a local quantity need) spends the dofs
+#: where the energy's error is not.
+ENERGY_QUANTITIES = ("contact_force",)
 
 
 @dataclass(frozen=True)
@@ -198,7 +209,11 @@ def solve_adaptive(
         facet_tags: Its facet tags (carried to every refined mesh).
         target: The relative error asked of the quantity, e.g. 0.01.
         quantity: ``"max_pressure"``, ``"contact_force"`` (its magnitude) or
-            ``"contact_area"``.
+            ``"contact_area"``. The force's error is estimated as the strain energy's
+            relative error: the two agree where the obstacle's motion drives the
+            body (displacements, no loads); where loads balanced by the contact
+            alone fix the force, the estimate is of the energy, and errs on the safe
+            side; where supports share the load with the contact it is not a bound.
         max_levels: The most refinements (levels after the first).
         theta: Dörfler's bulk fraction of the estimator marked at each level.
         surface: The body's true surface near Γ_C, as a map from points (k, gdim) to
@@ -290,17 +305,25 @@ def _adapt(
             result = solver.solve(warm_start=warm)
         values.append(quantity_value(quantity, result))
         zone = result.resolution
+        indicators = edge_indicators(problem, result, surface)
+        eta2 = indicators.total(comm)
         # a zone of one node (or a few, in 3D) is not resolved whatever its shape; the
         # recovered peak counts only where it is a fit (not the nodal maximum)
         few = 1 if problem.gdim == 2 else 3
         if quantity == "max_pressure":
             few = max(few, NEIGHBOURS[problem.gdim] - 1)
-        resolved.append(bool(zone is not None and zone.resolved and result.num_active > few))
-        estimate = level_estimate(values, resolved)
+        if quantity in ENERGY_QUANTITIES:
+            # the energy's error needs no smooth pressure: a zone of several nodes
+            resolved.append(result.num_active > few)
+            estimate = relative_energy_error(problem, result, eta2) if resolved[-1] else None
+        else:
+            resolved.append(bool(zone is not None and zone.resolved and result.num_active > few))
+            estimate = level_estimate(values, resolved)
         done = estimate is not None and estimate <= target
-        indicators = edge_indicators(problem, result, surface)
         marked = np.zeros(0, dtype=np.int32)
-        if not done and level < max_levels:
+        if not done and level < max_levels and quantity in ENERGY_QUANTITIES:
+            marked = doerfler_edges(indicators, theta, comm)
+        elif not done and level < max_levels:
             marking = indicators
             marked = contact_zone_edges(problem, result.multiplier)
             if zone is not None and zone.where is not None:
@@ -321,7 +344,7 @@ def _adapt(
             quantity=values[-1],
             estimate=estimate,
             resolved=resolved[-1],
-            indicator=float(np.sqrt(indicators.total(comm))),
+            indicator=float(np.sqrt(eta2)),
             iterations=result.iterations,
             cpu_seconds=0.0,
             wall_seconds=0.0,

@@ -27,11 +27,14 @@ estimated from successive levels (:mod:`admm_dolfinx.adapt.quantities`).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 import ufl
 from dolfinx import fem, mesh
 from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from admm_dolfinx.adapt.surface import Surface, project_on_surface
@@ -39,7 +42,7 @@ from admm_dolfinx.admm.result import ADMMResult
 from admm_dolfinx.problem.contact_problem import ContactProblem
 from admm_dolfinx.problem.contact_set import evaluate_obstacle, marked_facets
 
-__all__ = ["BUBBLE_STIFFNESS", "EdgeIndicators", "edge_indicators"]
+__all__ = ["BUBBLE_STIFFNESS", "EdgeIndicators", "edge_indicators", "relative_energy_error"]
 
 #: a(ψ_e, ψ_e) / (k ∫ψ_e) of an edge bubble, k the stiffness per volume of a hat
 #: function: 4 in 1D (∫ψ'² = 16/(3h), ∫ψ = 2h/3, against 2/h² for the hat), the scale
@@ -85,8 +88,6 @@ class EdgeIndicators:
 
     def total(self, comm) -> float:
         """η² = Σ_e η_e² over every rank; collective."""
-        from mpi4py import MPI
-
         return float(comm.allreduce(float(self.values[self.owned].sum()), op=MPI.SUM))
 
 
@@ -212,6 +213,38 @@ def edge_indicators(
     coordinates = _vertex_coordinates(msh)
     midpoints = 0.5 * (coordinates[all_edges[:, 0]] + coordinates[all_edges[:, 1]])
     return EdgeIndicators(values, mask, midpoints)
+
+
+def relative_energy_error(problem: ContactProblem, result: ADMMResult, eta2: float) -> float | None:
+    """η² / (a(u_h, u_h) − η²): the strain energy's estimated relative error; collective.
+
+    The hierarchical estimator's η² estimates ‖u − u_h‖²_a. Where the obstacle's
+    motion drives the body (displacements prescribed, no loads), the Galerkin solution
+    is stiffer by its energy error, a(u_h, u_h) = a(u, u) + ‖u − u_h‖²_a, and the
+    contact force is the energy's conjugate (for a rigid flat punch pressed δ,
+    a(u, u) = F δ): the ratio estimates the force's relative error
+    (:func:`~admm_dolfinx.adapt.adaptive.solve_adaptive` with
+    ``quantity="contact_force"``). Where loads fix the force, the discrete energy
+    is the lower one and the ratio over-estimates the energy's error.
+
+    Args:
+        problem: The contact problem (its bilinear form).
+        result: Its solution.
+        eta2: η² = Σ_e η_e² over the whole mesh.
+
+    Returns:
+        The ratio; infinity where η² is not below a(u_h, u_h) (an error of 100 % or
+        more); None where the solution has no energy (nothing deforms).
+    """
+    test, trial = _arguments(problem._a_ufl)
+    energy_form = ufl.replace(problem._a_ufl, {test: result.u, trial: result.u})
+    local = np.real(fem.assemble_scalar(fem.form(energy_form)))
+    energy = float(problem.comm.allreduce(float(local), op=MPI.SUM))
+    if not energy > 0.0:
+        return None
+    if eta2 >= energy:
+        return math.inf
+    return float(eta2) / (energy - float(eta2))
 
 
 def _stiffness_per_volume(problem: ContactProblem) -> npt.NDArray[np.float64]:

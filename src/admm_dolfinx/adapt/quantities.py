@@ -1,5 +1,9 @@
 """The quantities an engineer asks for, and their error estimated from successive levels.
 
+The contact force's error is not estimated here: it is the strain energy's, on each
+level (:func:`~admm_dolfinx.adapt.estimator.relative_energy_error`). The peak
+pressure's and the contact area's are, as follows.
+
 On every level of :func:`~admm_dolfinx.adapt.adaptive.solve_adaptive` the contact zone's
 element size halves (:func:`~admm_dolfinx.adapt.marking.contact_zone_edges`), so a
 quantity Q that converges at the order p in that size has, on level k,

@@ -841,7 +841,7 @@ def flat_punch(
     comm: MPI.Comm = MPI.COMM_WORLD,
     *,
     radius: float = 1.0,
-    depth: float = 0.01,
+    depth: float = 1e-4,
     size: float = 1000.0,
     cells: int = 4,
     E: float = 1.0,
@@ -855,8 +855,11 @@ def flat_punch(
     (E* = E/(1 − ν²)) and the pressure p(r) = F / (2π a sqrt(a² − r²)), infinite at the
     punch's edge: a case for the contact force, not the peak pressure. The block's
     size L (1000 a by default) makes the half-space's answer exact to well under 1 %,
-    and the mesh is a coarse uniform one (``cells`` per side) for
-    :func:`~admm_dolfinx.solve_adaptive` to refine.
+    and so does the depth δ ≪ a: the surface just outside the rim moves inwards by
+    O(δ), and where a node there lies closer than that to the rim the punch's side
+    stops it, a contact Boussinesq's linear theory does not have; the mesh is a
+    coarse uniform one (``cells`` per side) for :func:`~admm_dolfinx.solve_adaptive`
+    to refine.
 
     Args:
         comm: Communicator.
@@ -895,7 +898,7 @@ def flat_punch_graded(
     *,
     level: int = 0,
     radius: float = 1.0,
-    depth: float = 0.01,
+    depth: float = 1e-4,
     size: float = 1000.0,
     grading: float = 0.3,
     E: float = 1.0,
@@ -937,7 +940,7 @@ def flat_punch_on(
     facet_tags: MeshTags,
     *,
     radius: float = 1.0,
-    depth: float = 0.01,
+    depth: float = 1e-4,
     E: float = 1.0,
     nu: float = 0.3,
 ) -> Scene:
