@@ -45,6 +45,12 @@ size a/4 there and its growth with the distance both halved per level), and
 mesh is within 5 %, 3 % and 1 % of Boussinesq's force, with its dofs and CPU seconds,
 and whether the adaptive run claimed the target.
 
+``--part punch-step1`` runs the punch's adaptive levels twice, one run after the
+other: with the default step-1 plan and with ``step1="factorised"``, and gives, for
+the levels past 10k dofs and for the whole run, what the default chose, the ADMM
+iterations and the CPU seconds of each (the plan's crossover between a factorisation
+and multigrid against a body whose iterations grow with its contact nodes).
+
 Writes out_benchmarks/work_precision_adaptive_*.csv and work_precision_adaptive.png.
 """
 
@@ -418,9 +424,79 @@ def plot(rows, path, full_run=False, punch_rows=()):
         fig.savefig(Path(__file__).resolve().parents[1] / "docs" / "figures" / path.name, dpi=120)
 
 
+def punch_step1(comm, max_levels):
+    """The punch's adaptive levels with the default step-1 plan and with factorisations.
+
+    The two runs refine alike (the same marking on the same solutions to the
+    tolerance); the rows pair their levels.
+    """
+    runs = {}
+    for name, options in (("default", {}), ("factorised", {"step1": "factorised"})):
+        scene = lib.flat_punch(comm)
+        try:
+            run = ad.solve_adaptive(
+                lambda m, t: lib.flat_punch_on(m, t).problem(),
+                scene.mesh,
+                scene.facet_tags,
+                target=TARGET,
+                quantity="contact_force",
+                max_levels=max_levels,
+                **options,
+            )
+        except ad.AdaptiveLimitError as err:
+            run = err.adaptive
+        run.problem.destroy()
+        runs[name] = run.history
+    rows = []
+    for d, f in zip(runs["default"], runs["factorised"], strict=False):
+        if d.dofs < PUNCH_STEP1_FROM:
+            continue
+        rows.append(
+            {
+                "level": d.level,
+                "dofs": d.dofs,
+                "active": d.active,
+                "default step 1": d.step1,
+                "default its": d.iterations,
+                "default cpu [s]": f"{d.cpu_seconds:.2f}",
+                "factorised dofs": f.dofs,
+                "factorised its": f.iterations,
+                "factorised cpu [s]": f"{f.cpu_seconds:.2f}",
+                "default / factorised cpu": f"{d.cpu_seconds / f.cpu_seconds:.2f}",
+            }
+        )
+    total = {name: sum(h.cpu_seconds for h in history) for name, history in runs.items()}
+    rows.append(
+        {
+            "level": "all",
+            "dofs": runs["default"][-1].dofs,
+            "active": runs["default"][-1].active,
+            "default step 1": "–",
+            "default its": sum(h.iterations for h in runs["default"]),
+            "default cpu [s]": f"{total['default']:.2f}",
+            "factorised dofs": runs["factorised"][-1].dofs,
+            "factorised its": sum(h.iterations for h in runs["factorised"]),
+            "factorised cpu [s]": f"{total['factorised']:.2f}",
+            "default / factorised cpu": f"{total['default'] / total['factorised']:.2f}",
+        }
+    )
+    return rows
+
+
+#: The punch's step-1 table lists the levels from this size on.
+PUNCH_STEP1_FROM = 10_000
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument(
+        "--part",
+        choices=("all", "punch-step1"),
+        default="all",
+        help="punch-step1: the punch's adaptive levels with the default step-1 plan "
+        "and with step1='factorised', side by side (its own table)",
+    )
     parser.add_argument("--out", default="out_benchmarks")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
@@ -428,6 +504,11 @@ def main():
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     comm.barrier()
+    if args.part == "punch-step1":
+        rows = punch_step1(comm, 3 if args.quick else PUNCH_LEVELS[2])
+        if comm.rank == 0:
+            print_and_save(rows, out / "work_precision_adaptive_punch_step1.csv")
+        return
     bodies = {"cylinder": BODIES["cylinder"]} if args.quick else BODIES
     rows, summaries, histories = [], [], []
     for body, (_, _, n_uniform, n_graded) in bodies.items():

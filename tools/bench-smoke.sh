@@ -37,5 +37,6 @@ run "$py" benchmarks/step1_crossover.py --quick
 run "$py" benchmarks/floating_3d.py --quick
 run "$py" benchmarks/scale_2d.py --quick
 run "$py" benchmarks/work_precision_adaptive.py --quick
+run "$py" benchmarks/work_precision_adaptive.py --quick --part punch-step1
 for b in "${parallel_smoke[@]}"; do run "$mpiexec" -n 2 "$py" "benchmarks/$b.py" --quick; done
 echo "benchmarks: all ran"

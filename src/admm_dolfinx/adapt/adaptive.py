@@ -89,6 +89,8 @@ class AdaptiveLevel:
         resolved: Whether the contact zone was resolved.
         indicator: The hierarchical estimator η = (Σ_e η_e²)^½ (energy norm).
         iterations: ADMM iterations of the solve.
+        step1: How the solve's step 1 was solved (``"condensed"``, ``"factorised"``
+            or ``"iterative"``, from its plan).
         cpu_seconds: CPU seconds of the level (solve, estimate, marking, refinement),
             summed over the processes.
         wall_seconds: Wall-clock seconds of the level.
@@ -104,6 +106,7 @@ class AdaptiveLevel:
     resolved: bool
     indicator: float
     iterations: int
+    step1: str
     cpu_seconds: float
     wall_seconds: float
     marked: int = 0
@@ -346,6 +349,7 @@ def _adapt(
             resolved=resolved[-1],
             indicator=float(np.sqrt(eta2)),
             iterations=result.iterations,
+            step1=result.plan.step1 if result.plan is not None else "",
             cpu_seconds=0.0,
             wall_seconds=0.0,
             marked=count_edges(msh, marked),
