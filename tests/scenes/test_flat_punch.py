@@ -59,3 +59,28 @@ def test_the_rim_following_mesh_converges_to_boussinesq():
     # a P1 mesh is stiff: the force is too large, less so on the finer mesh
     assert 0.0 < errors[1] < errors[0] < 0.3
     assert errors[1] < 0.6 * errors[0]
+
+
+@pytest.mark.parametrize("depth", [1e-4, 1e-2])
+def test_the_strain_energy_is_the_work_of_the_contact_force(depth):
+    """a(u_h, u_h) = F_h δ: the premise of the contact force's error estimate.
+
+    With no loads and the punch's face at the depth δ, the discrete equilibrium tested
+    with u_h gives a(u_h, u_h) = Σ λ_i u_h,n(x_i) over the contact nodes, and every
+    pressed node sits at u_n = δ (complementarity): the energy is the contact force's
+    work, to the solver's tolerance. The strain energy is assembled from the problem's
+    own form, the force summed from the multipliers: two independent computations.
+    """
+    from admm_dolfinx.adapt.estimator import relative_energy_error
+
+    scene = lib.flat_punch_graded(MPI.COMM_WORLD, level=0, depth=depth)
+    problem = scene.problem()
+    with ad.ADMMSolver(problem) as solver:
+        result = solver.solve()
+    assert result.converged
+    force = float(np.linalg.norm(result.contact_force))
+    eta2 = 1e-3 * force * depth  # an error of 0.1 % of the energy, relative
+    estimate = relative_energy_error(problem, result, eta2)
+    energy = eta2 / estimate + eta2  # a(u_h, u_h), as the estimate's denominator has it
+    problem.destroy()
+    assert energy == pytest.approx(force * depth, rel=1e-5)  # the solve's tolerance: 1e-7
