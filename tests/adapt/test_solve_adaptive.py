@@ -231,3 +231,29 @@ def test_flat_punch_force_reaches_its_target_with_an_honest_estimate():
     for h in estimated:
         error = abs(h.quantity / force - 1.0)
         assert error / HONESTY <= h.estimate <= HONESTY * error, h
+
+
+@pytest.mark.timeout(300)
+def test_a_load_driven_force_is_estimated_on_the_safe_side():
+    """The 2D Hertz cylinder pressed by a load the contact alone balances.
+
+    Its contact force is the load on any mesh (equilibrium); the estimate, the strain
+    energy's relative error, is positive and falls with the levels, and the run ends
+    with the force the load to round-off: the estimate errs on the safe side.
+    """
+    scene, build = _hertz_2d(MPI.COMM_WORLD)
+    adaptive = ad.solve_adaptive(
+        build,
+        scene.mesh,
+        scene.facet_tags,
+        target=0.02,
+        quantity="contact_force",
+        surface=scene.surface,
+        max_levels=12,
+    )
+    assert adaptive.converged and adaptive.estimated_error <= 0.02
+    estimates = [h.estimate for h in adaptive.history if h.estimate is not None]
+    assert all(e > 0.0 for e in estimates)
+    assert estimates[-1] < estimates[0]
+    forces = np.array([h.quantity for h in adaptive.history])
+    assert np.allclose(forces, forces[0], rtol=1e-8)  # the load, on every level
