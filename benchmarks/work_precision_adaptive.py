@@ -220,24 +220,6 @@ def _punch_row(method, level, scene, problem, result, cpu):
     }
 
 
-def _adaptive_punch(comm, max_levels, **options):
-    """(scene, what solve_adaptive reached) on the force of the punch, to TARGET."""
-    scene = lib.flat_punch(comm)
-    try:
-        run = ad.solve_adaptive(
-            lambda m, t: lib.flat_punch_on(m, t).problem(),
-            scene.mesh,
-            scene.facet_tags,
-            target=TARGET,
-            quantity="contact_force",
-            max_levels=max_levels,
-            **options,
-        )
-    except ad.AdaptiveLimitError as err:
-        run = err.adaptive
-    return scene, run
-
-
 def punch(comm, levels=PUNCH_LEVELS):
     """The flat punch's rows: uniform, graded by hand, and solve_adaptive's levels."""
     n_uniform, n_graded, n_adaptive = levels
@@ -262,7 +244,18 @@ def punch(comm, levels=PUNCH_LEVELS):
         result = _solve(problem)
         rows.append(_punch_row("graded", level, scene, problem, result, _cpu(comm) - cpu0))
         problem.destroy()
-    scene, run = _adaptive_punch(comm, n_adaptive)
+    scene = lib.flat_punch(comm)
+    try:
+        run = ad.solve_adaptive(
+            lambda m, t: lib.flat_punch_on(m, t).problem(),
+            scene.mesh,
+            scene.facet_tags,
+            target=TARGET,
+            quantity="contact_force",
+            max_levels=n_adaptive,
+        )
+    except ad.AdaptiveLimitError as err:
+        run = err.adaptive
     force, area = scene.info["force"], scene.info["area"]
     spent = 0.0
     for h in run.history:
@@ -447,7 +440,19 @@ def punch_step1(comm, max_levels):
     """
     runs = {}
     for name, options in (("default", {}), ("factorised", {"step1": "factorised"})):
-        _, run = _adaptive_punch(comm, max_levels, **options)
+        scene = lib.flat_punch(comm)
+        try:
+            run = ad.solve_adaptive(
+                lambda m, t: lib.flat_punch_on(m, t).problem(),
+                scene.mesh,
+                scene.facet_tags,
+                target=TARGET,
+                quantity="contact_force",
+                max_levels=max_levels,
+                **options,
+            )
+        except ad.AdaptiveLimitError as err:
+            run = err.adaptive
         run.problem.destroy()
         runs[name] = run.history
     rows = []

@@ -257,36 +257,3 @@ def test_a_load_driven_force_is_estimated_on_the_safe_side():
     assert estimates[-1] < estimates[0]
     forces = np.array([h.quantity for h in adaptive.history])
     assert np.allclose(forces, forces[0], rtol=1e-8)  # the load, on every level
-
-
-@pytest.mark.mpi4
-@pytest.mark.timeout(300)
-def test_the_force_levels_agree_on_every_partition():
-    """The contact force's path (energy estimate, Dörfler alone) on any partition.
-
-    Boussinesq's punch to 10 % on one process and on all of them. The marking is
-    partition-independent, but 3D refinement breaks ties between equally long edges
-    by global vertex numbers, so from some level on the meshes differ by a few dofs
-    (the sphere's test says the same): the same number of levels, the same levels
-    with an estimate, the sizes within 1 %, and the estimate and the force far closer
-    than the target. Under ``mpiexec -n 4`` one rank owns no contact node on the first
-    mesh.
-    """
-    runs = {}
-    for name, comm in (("self", MPI.COMM_SELF), ("world", MPI.COMM_WORLD)):
-        scene = lib.flat_punch(comm)
-        runs[name] = ad.solve_adaptive(
-            lambda m, t: lib.flat_punch_on(m, t).problem(),
-            scene.mesh,
-            scene.facet_tags,
-            target=0.1,
-            quantity="contact_force",
-            max_levels=24,
-        )
-    one, many = runs["self"], runs["world"]
-    assert len(one.history) == len(many.history)
-    assert [h.estimate is None for h in one.history] == [h.estimate is None for h in many.history]
-    for a, b in zip(one.history, many.history, strict=True):
-        assert b.dofs == pytest.approx(a.dofs, rel=0.01)
-    assert many.estimated_error == pytest.approx(one.estimated_error, rel=0.01)
-    assert many.value == pytest.approx(one.value, rel=1e-3)

@@ -35,11 +35,7 @@ from mpi4py import MPI
 
 from admm_dolfinx._logging import get_logger, speaking_for
 from admm_dolfinx._mpi import collective_call
-from admm_dolfinx.adapt.estimator import (
-    EdgeIndicators,
-    edge_indicators,
-    relative_energy_error,
-)
+from admm_dolfinx.adapt.estimator import edge_indicators, relative_energy_error
 from admm_dolfinx.adapt.marking import (
     contact_zone_edges,
     count_edges,
@@ -64,17 +60,18 @@ logger = get_logger(__name__)
 
 #: Dörfler's bulk fraction θ by default.
 DEFAULT_THETA = 0.5
+#: The quantities read off the contact zone: their estimator is localised there
+#: (:meth:`~admm_dolfinx.adapt.estimator.EdgeIndicators.localised`), the zone is split
+#: at every level and its error is estimated from successive levels
+#: (:func:`~admm_dolfinx.adapt.quantities.level_estimate`).
+LOCAL_QUANTITIES = ("max_pressure", "contact_area")
 #: The quantities of the whole body's stiffness: the contact force, the strain energy's
 #: conjugate where the obstacle's motion drives the body. Their error is the relative
 #: energy error η²/(a(u_h, u_h) − η²) on each level
 #: (:func:`~admm_dolfinx.adapt.estimator.relative_energy_error`), and the marking is
 #: Dörfler's alone on the energy-norm estimator: splitting the whole contact zone at
 #: every level (what the level differences of a local quantity need) spends the dofs
-#: where the energy's error is not. The others (the peak pressure, the contact area)
-#: are read off the contact zone: their estimator is localised there
-#: (:meth:`~admm_dolfinx.adapt.estimator.EdgeIndicators.localised`), the zone is split
-#: at every level and their error is estimated from successive levels
-#: (:func:`~admm_dolfinx.adapt.quantities.level_estimate`).
+#: where the energy's error is not.
 ENERGY_QUANTITIES = ("contact_force",)
 
 
@@ -327,8 +324,20 @@ def _adapt(
             estimate = level_estimate(values, resolved)
         done = estimate is not None and estimate <= target
         marked = np.zeros(0, dtype=np.int32)
-        if not done and level < max_levels:
-            marked = _marked_edges(quantity, problem, result, indicators, theta)
+        if not done and level < max_levels and quantity in ENERGY_QUANTITIES:
+            marked = doerfler_edges(indicators, theta, comm)
+        elif not done and level < max_levels:
+            marking = indicators
+            marked = contact_zone_edges(problem, result.multiplier)
+            if zone is not None and zone.where is not None:
+                size = zone.half_width if zone.half_width is not None else zone.patch_radius
+                radius = max(size, zone.patch_radius)
+                if quantity in LOCAL_QUANTITIES:
+                    marking = indicators.localised(zone.where, radius)
+                marked = np.union1d(
+                    marked, graded_edges(msh, zone.where, radius, 2.0 * zone.patch_radius)
+                )
+            marked = np.union1d(marked, doerfler_edges(marking, theta, comm)).astype(np.int32)
         bs = problem.V.dofmap.index_map_bs
         record = AdaptiveLevel(
             level=level,
@@ -393,34 +402,6 @@ def _adapt(
             adaptive,
         )
     return adaptive
-
-
-def _marked_edges(
-    quantity: str,
-    problem: ContactProblem,
-    result: ADMMResult,
-    indicators: EdgeIndicators,
-    theta: float,
-) -> np.ndarray:
-    """The local edges to split for the next level; collective.
-
-    For the contact force, Dörfler's bulk of the energy-norm estimator. For a
-    quantity read off the contact zone, the zone's cells, a grading around it, and
-    Dörfler's bulk of the estimator weighted towards the zone.
-    """
-    comm = problem.comm
-    if quantity in ENERGY_QUANTITIES:
-        return doerfler_edges(indicators, theta, comm)
-    marking = indicators
-    marked = contact_zone_edges(problem, result.multiplier)
-    zone = result.resolution
-    if zone is not None and zone.where is not None:
-        size = zone.half_width if zone.half_width is not None else zone.patch_radius
-        radius = max(size, zone.patch_radius)
-        marking = indicators.localised(zone.where, radius)
-        grading = graded_edges(problem.mesh, zone.where, radius, 2.0 * zone.patch_radius)
-        marked = np.union1d(marked, grading)
-    return np.union1d(marked, doerfler_edges(marking, theta, comm)).astype(np.int32)
 
 
 def _timed(record: AdaptiveLevel, cpu: float, wall: float) -> AdaptiveLevel:
